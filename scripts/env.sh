@@ -1,0 +1,16 @@
+# Sourced by the Makefile and scripts: the venv, the ament index, the colcon install,
+# the Fast DDS profile with a 32 MB shared-memory segment and localhost-only discovery.
+_ws="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+# shellcheck disable=SC1091
+source "$_ws/.venv/bin/activate"
+export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+if [ -f "$_ws/install/setup.bash" ]; then
+    # colcon's setup scripts reference unset variables
+    set +u
+    # shellcheck disable=SC1091
+    source "$_ws/install/setup.bash"
+fi
+export FASTRTPS_DEFAULT_PROFILES_FILE="$_ws/config/fastdds_localhost_bigshm.xml"
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+export VLC_WS="$_ws"
+unset _ws

@@ -1,0 +1,1 @@
+"""Camera-platform attitude from the IMU and vibration/heading compensation."""

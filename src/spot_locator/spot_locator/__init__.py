@@ -1,0 +1,1 @@
+"""Sub-pixel lamp spot centres in both stereo images (gray centroid, ellipse fit, circularity fusion, Wiener deblurring)."""

@@ -1,0 +1,1 @@
+"""ROS-free algorithm code (numpy/scipy/OpenCV only): no rclpy, no message types."""
