@@ -1,0 +1,79 @@
+"""Scenario parameters shared by ``stereo_camera_node`` and ``adis16488_node``.
+
+Both nodes declare the same parameters (documented in ``config/rig.yaml``) and build the
+same :class:`~vlc_stereo_camera.core.trajectory.Trajectory` from them, so the images and
+the IMU samples describe one motion. Pass ``config/rig.yaml`` to both.
+"""
+from dataclasses import dataclass
+
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+
+from .core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
+
+
+def _desc(text, lo=None, hi=None, integer=False, ptype=None):
+    d = ParameterDescriptor(description=text)
+    if ptype is not None:
+        d.type = ptype
+    if lo is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+SCENARIO_PARAMETERS = (
+    # name, default, descriptor
+    ('seed', 1, _desc('Seed of every random process of the scenario (vibration phases, '
+                      'lamp clocks, sensor noise).', 0, 2 ** 31 - 1, integer=True)),
+    ('epoch_s', 1704067200.0, _desc('Simulated clock epoch: ROS time of t = 0, seconds '
+                                    '(2024-01-01T00:00:00Z).', 0.0, 4.0e9)),
+    ('motion_profile', 'constant', _desc('Train motion: stationary, constant or '
+                                         'accel_cruise_brake.', ptype=ParameterType.PARAMETER_STRING)),
+    ('start_chainage_m', 0.0, _desc('Chainage of base_link at t = 0, metres.', -1.0e5, 1.0e6)),
+    ('speed_kmh', 20.0, _desc('Constant or cruise speed, km/h.', 0.0, 200.0)),
+    ('accel_mps2', 1.0, _desc('Acceleration of accel_cruise_brake, m/s^2.', 0.01, 3.0)),
+    ('brake_mps2', 1.0, _desc('Braking deceleration of accel_cruise_brake, m/s^2.', 0.01, 3.0)),
+    ('dwell_s', 5.0, _desc('Standstill before accelerating (accel_cruise_brake), s.', 0.0, 3600.0)),
+    ('cruise_s', 20.0, _desc('Cruise duration (accel_cruise_brake), s.', 0.0, 36000.0)),
+    ('vibration_enabled', True, _desc('Platform vibration per paper eq. 21 on or off.')),
+    ('vibration_scale', 1.0, _desc('Scale of all vibration amplitudes (1 = paper: heading '
+                                   '-5.0..+7.5 deg).', 0.0, 5.0)),
+)
+
+
+@dataclass
+class ScenarioConfig:
+    seed: int
+    epoch_s: float
+    motion_profile: str
+    start_chainage_m: float
+    speed_kmh: float
+    accel_mps2: float
+    brake_mps2: float
+    dwell_s: float
+    cruise_s: float
+    vibration_enabled: bool
+    vibration_scale: float
+
+    def trajectory(self):
+        """The Trajectory these parameters describe (raises ValueError if invalid)."""
+        profile = MotionProfile(kind=self.motion_profile,
+                                start_chainage_m=self.start_chainage_m,
+                                speed_mps=self.speed_kmh / 3.6, accel_mps2=self.accel_mps2,
+                                brake_mps2=self.brake_mps2, dwell_s=self.dwell_s,
+                                cruise_s=self.cruise_s)
+        vibration = Vibration(VibrationConfig(enabled=self.vibration_enabled,
+                                              scale=self.vibration_scale), seed=self.seed)
+        return Trajectory(profile, vibration)
+
+
+def declare_scenario_parameters(node):
+    """Declare the shared scenario parameters on ``node`` and return a ScenarioConfig."""
+    for name, default, descriptor in SCENARIO_PARAMETERS:
+        node.declare_parameter(name, default, descriptor)
+    values = {name: node.get_parameter(name).value for name, _, _ in SCENARIO_PARAMETERS}
+    return ScenarioConfig(**values)
