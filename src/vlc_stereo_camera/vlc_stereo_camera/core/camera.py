@@ -59,7 +59,7 @@ class StereoRig:
     baseline_m: float = 0.12
     mount_xyz_m: tuple = (0.0, 0.8, 2.9)
     placement_angle_deg: float = 49.0
-    pitch_deg: float = 26.0
+    pitch_deg: float = 27.0
 
     def __post_init__(self):
         if self.intrinsics is None:
