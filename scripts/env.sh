@@ -14,3 +14,5 @@ export FASTRTPS_DEFAULT_PROFILES_FILE="$_ws/config/fastdds_localhost_bigshm.xml"
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 export VLC_WS="$_ws"
 unset _ws
+# `ros2 run` stand-in for machines without the ros2 CLI: ros2run <pkg> <exe> [args...]
+ros2run() { "$VLC_WS/install/lib/$1/$2" "${@:3}"; }
