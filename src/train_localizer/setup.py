@@ -21,7 +21,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            
+            'train_localizer_node = train_localizer.train_localizer_node:main',
+            'bag_recorder = train_localizer.bagtools.recorder_node:main',
+            'bag_player = train_localizer.bagtools.player_node:main',
         ],
     },
 )

@@ -1,0 +1,1 @@
+"""Offline accuracy evaluation against ground truth (EVALUATION.md); no rclpy."""
