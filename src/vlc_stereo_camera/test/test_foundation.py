@@ -122,16 +122,20 @@ def test_stereo_projection_disparity_and_epipolar():
 
 
 def test_visibility_window_of_default_mount():
-    """Lamp centres are in both images from 0.44 to 9.56 m along track (pitch 27 deg)."""
+    """Lamp centres are in both images from 0.44 to 9.55 m along track (pitch 27 deg).
+
+    Pixel u covers [u - 0.5, u + 0.5]: the sensor spans [-0.5, 1279.5] x [-0.5, 719.5].
+    """
     rig = StereoRig()
     d = np.arange(0.3, 12.0, 0.01)
     pts = np.stack([d, np.full_like(d, 2.5), np.full_like(d, 1.4)], axis=1)
     uv_l, uv_r, z = rig.project(pts, np.zeros(3), np.eye(3))
     inside = (z > 0)
     for uv in (uv_l, uv_r):
-        inside &= (uv[:, 0] >= 0) & (uv[:, 0] < 1280) & (uv[:, 1] >= 0) & (uv[:, 1] < 720)
+        inside &= ((uv[:, 0] >= -0.5) & (uv[:, 0] <= 1279.5)
+                   & (uv[:, 1] >= -0.5) & (uv[:, 1] <= 719.5))
     assert d[inside].min() == pytest.approx(0.44, abs=0.011)
-    assert d[inside].max() == pytest.approx(9.56, abs=0.011)
+    assert d[inside].max() == pytest.approx(9.55, abs=0.011)
     # 19 of the 20 static test points (0.5 .. 10 m) have their lamp's centre in view;
     # 10.0 m before a lamp is beside the previous one, which no forward view can see.
     points = np.arange(0.5, 10.01, 0.5)

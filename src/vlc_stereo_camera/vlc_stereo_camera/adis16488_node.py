@@ -1,0 +1,338 @@
+"""adis16488_node: the simulated ADIS16488 IMU on the train head.
+
+Follows the same trajectory and vibration as ``stereo_camera_node`` (the shared scenario
+parameters of :mod:`vlc_stereo_camera.rig_params`) and adds the datasheet errors of
+:mod:`vlc_stereo_camera.core.imu_model`.
+
+Publications
+------------
+``imu/data_raw`` (sensor_msgs/Imu, ``qos_profile_sensor_data``)
+    Sample n stamped exactly epoch + n / rate_hz; angular rate (rad/s) and specific
+    force (m/s², +9.81 on z at rest) in ``imu_frame_id`` (axes of base_link); covariance
+    diagonals = white-noise variance per sample; orientation absent
+    (``orientation_covariance[0] = -1``).
+``diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10)
+    1 Hz (wall clock) status: samples published, simulated time, lag behind the pacing
+    target, current bias.
+
+Samples are generated in simulated time and paced to the wall clock by
+``realtime_factor`` (0 = as fast as possible), a batch per timer tick. With
+``duration_s`` > 0 the node publishes every sample with t < duration_s and exits 0; with
+``wait_for_subscribers`` N > 0 simulated time starts only when ``imu/data_raw`` has N
+subscribers. Invalid parameters fail at start-up with a message and exit code 2 (as
+``stereo_camera_node``). Parameters: ``config/adis16488_node.yaml`` and the shared
+``config/rig.yaml``.
+"""
+import math
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.task import Future
+from sensor_msgs.msg import Imu
+
+from .core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
+                             Adis16488Params, ImuSampler)
+from .imu_conversions import (epoch_to_ns, imu_message, ns_to_time, sample_stamp_ns,
+                              set_imu_sample)
+from .rig_params import ScenarioConfig, declare_scenario_parameters
+
+#: Samples are generated in blocks of this much simulated time and published from the
+#: block as they fall due (one trajectory evaluation per block instead of per tick); it
+#: is also the most one tick publishes when catching up or running as fast as possible.
+BLOCK_S = 0.1
+#: Timer period of the as-fast-as-possible mode (realtime_factor = 0), seconds.
+ASAP_PERIOD_S = 0.001
+#: Lag behind the pacing target above which diagnostics report WARN, seconds.
+LAG_WARN_S = 0.5
+#: Exit code of an invalid configuration (same as stereo_camera_node).
+EXIT_INVALID_CONFIG = 2
+
+
+def _desc(text, lo=None, hi=None, ptype=None, integer=False):
+    d = ParameterDescriptor(description=text)
+    if ptype is not None:
+        d.type = ptype
+    if lo is not None and integer:
+        d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+    elif lo is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
+                                                     step=0.0)]
+    return d
+
+
+_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
+_DEFAULT = Adis16488Params()
+
+#: (name, default, descriptor) of the node's own parameters; see config/adis16488_node.yaml.
+NODE_PARAMETERS = (
+    ('rate_hz', 400.0, _desc('Output data rate, Hz (ADIS16488: up to 2460).', 1.0, MAX_RATE_HZ)),
+    ('realtime_factor', 1.0, _desc('Simulated seconds per wall-clock second; 0 = as fast '
+                                   'as possible.', 0.0, 100.0)),
+    ('publish_period_s', 0.01, _desc('Wall-clock period of the publishing timer, s; each '
+                                     'tick publishes the samples due.', 0.001, 0.1)),
+    ('duration_s', 0.0, _desc('Simulated duration, s; 0 = forever. Samples with t < '
+                              'duration_s are published, then the node exits 0.', 0.0, 1.0e7)),
+    ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until imu/data_raw has this '
+                                      'many subscribers (0 = start at once).', 0, 100,
+                                      integer=True)),
+    ('imu_frame_id', 'imu_link', _desc('frame_id of the messages (axes of base_link).',
+                                       ptype=ParameterType.PARAMETER_STRING)),
+    ('lever_arm_m', [0.0, 0.0, 0.0], _desc('IMU position in base_link [x, y, z], m; adds '
+                                          'w x (w x r) + dw/dt x r to the specific force.',
+                                          ptype=_ARRAY)),
+    ('noise_enabled', True, _desc('false: publish the true rate and specific force '
+                                  '(every error term off).')),
+    ('gyro_arw_deg_rthr', 0.26, _desc('Gyro angle random walk, deg/sqrt(h).', 0.0, 100.0)),
+    ('gyro_bias_instability_deg_hr', 5.1, _desc('Gyro in-run bias stability (Allan '
+                                                'floor), deg/h.', 0.0, 1000.0)),
+    ('gyro_bias_corr_times_s', list(_DEFAULT.gyro_bias_corr_times_s),
+     _desc('Correlation times of the gyro Gauss-Markov bias bank, s.', ptype=_ARRAY)),
+    ('gyro_turn_on_bias_dps', 0.2, _desc('1 sigma of the constant gyro turn-on bias, '
+                                         'deg/s.', 0.0, 10.0)),
+    ('gyro_scale_factor_sigma', 0.01, _desc('1 sigma gyro scale-factor error (0.01 = 1 %).',
+                                            0.0, 0.2)),
+    ('gyro_misalignment_deg', 0.05, _desc('1 sigma gyro axis-to-axis misalignment, deg.',
+                                          0.0, 5.0)),
+    ('gyro_range_dps', 450.0, _desc('Gyro dynamic range (outputs clipped), deg/s.',
+                                    1.0, 10000.0)),
+    ('accel_vrw_mps_rthr', 0.029, _desc('Accelerometer velocity random walk, m/s/sqrt(h).',
+                                        0.0, 10.0)),
+    ('accel_bias_instability_mg', 0.1, _desc('Accelerometer in-run bias stability (Allan '
+                                             'floor), mg.', 0.0, 100.0)),
+    ('accel_bias_corr_times_s', list(_DEFAULT.accel_bias_corr_times_s),
+     _desc('Correlation times of the accelerometer Gauss-Markov bias bank, s.', ptype=_ARRAY)),
+    ('accel_turn_on_bias_mg', 16.0, _desc('1 sigma of the constant accelerometer turn-on '
+                                          'bias, mg.', 0.0, 1000.0)),
+    ('accel_scale_factor_sigma', 0.005, _desc('1 sigma accelerometer scale-factor error.',
+                                              0.0, 0.2)),
+    ('accel_misalignment_deg', 0.035, _desc('1 sigma accelerometer axis-to-axis '
+                                            'misalignment, deg.', 0.0, 5.0)),
+    ('accel_range_g', 18.0, _desc('Accelerometer dynamic range (outputs clipped), g.',
+                                  0.1, 1000.0)),
+)
+
+
+@dataclass
+class Adis16488NodeConfig:
+    """Every parameter of the node, read once at start-up (SI units except where named)."""
+
+    rate_hz: float
+    realtime_factor: float
+    publish_period_s: float
+    duration_s: float
+    wait_for_subscribers: int
+    imu_frame_id: str
+    lever_arm_m: tuple
+    noise_enabled: bool
+    imu: Adis16488Params
+    scenario: ScenarioConfig
+
+
+def read_config(node):
+    """Declare and read the node's and the scenario's parameters.
+
+    Raises
+    ------
+    rclpy.exceptions.ParameterException
+        A value has the wrong type or is out of its declared range.
+    ValueError
+        A value is inconsistent (lever arm not 3 numbers, bad correlation times, ...).
+    """
+    for name, default, descriptor in NODE_PARAMETERS:
+        node.declare_parameter(name, default, descriptor)
+    v = {name: node.get_parameter(name).value for name, _, _ in NODE_PARAMETERS}
+    scenario = declare_scenario_parameters(node)
+    lever = tuple(float(x) for x in v['lever_arm_m'])
+    if len(lever) != 3 or not all(math.isfinite(x) for x in lever):
+        raise ValueError(f'lever_arm_m must be 3 finite numbers [x, y, z] in metres, '
+                         f'got {list(v["lever_arm_m"])}')
+    if not v['imu_frame_id']:
+        raise ValueError('imu_frame_id must not be empty')
+    imu = Adis16488Params.from_datasheet_units(
+        gyro_arw_deg_rthr=v['gyro_arw_deg_rthr'],
+        gyro_bias_instability_deg_hr=v['gyro_bias_instability_deg_hr'],
+        accel_vrw_mps_rthr=v['accel_vrw_mps_rthr'],
+        accel_bias_instability_mg=v['accel_bias_instability_mg'],
+        gyro_bias_corr_times_s=v['gyro_bias_corr_times_s'],
+        accel_bias_corr_times_s=v['accel_bias_corr_times_s'],
+        gyro_turn_on_bias_sigma_dps=v['gyro_turn_on_bias_dps'],
+        accel_turn_on_bias_sigma_mg=v['accel_turn_on_bias_mg'],
+        gyro_scale_factor_sigma=v['gyro_scale_factor_sigma'],
+        accel_scale_factor_sigma=v['accel_scale_factor_sigma'],
+        gyro_misalignment_sigma_deg=v['gyro_misalignment_deg'],
+        accel_misalignment_sigma_deg=v['accel_misalignment_deg'],
+        gyro_range_dps=v['gyro_range_dps'], accel_range_g=v['accel_range_g'])
+    if not v['noise_enabled']:
+        imu = imu.ideal()
+    return Adis16488NodeConfig(
+        rate_hz=v['rate_hz'], realtime_factor=v['realtime_factor'],
+        publish_period_s=v['publish_period_s'], duration_s=v['duration_s'],
+        wait_for_subscribers=v['wait_for_subscribers'],
+        imu_frame_id=v['imu_frame_id'], lever_arm_m=lever,
+        noise_enabled=v['noise_enabled'], imu=imu, scenario=scenario)
+
+
+class Adis16488Node(Node):
+    """Publishes the simulated IMU; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('adis16488_node', **kwargs)
+        self.config = cfg = read_config(self)
+        model = Adis16488Model(cfg.rate_hz, cfg.scenario.seed, cfg.imu)
+        self._sampler = ImuSampler(cfg.scenario.trajectory(), model, cfg.lever_arm_m)
+        self._epoch_ns = epoch_to_ns(cfg.scenario.epoch_s)
+        # One message refilled per sample: frame and covariances never change.
+        self._msg = imu_message(self._epoch_ns, cfg.imu_frame_id, (0.0, 0.0, 0.0),
+                                (0.0, 0.0, 0.0), model.gyro_white_variance,
+                                model.accel_white_variance)
+        self._block = max(1, math.ceil(cfg.rate_hz * BLOCK_S))
+        self._buffer = None          # ImuBatch generated ahead, published from _buffer_pos
+        self._buffer_pos = 0
+        self._next_index = 0         # next sample to publish
+        # Samples 0 .. end_index-1 (t < duration_s) are published; None = endless.
+        self._end_index = (math.ceil(cfg.duration_s * cfg.rate_hz - 1e-9)
+                           if cfg.duration_s > 0.0 else None)
+        #: Done (result: the exit code) once duration_s has been published.
+        self.finished = Future()
+        self._published = 0
+        self._skipped = 0
+        self._lag_s = 0.0
+        self._last_stamp_ns = None
+        self._wall_start = None
+
+        self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos_profile_sensor_data)
+        self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        period = cfg.publish_period_s if cfg.realtime_factor > 0.0 else ASAP_PERIOD_S
+        self._timer = self.create_timer(period, self._on_tick)
+        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f'ADIS16488 at {cfg.rate_hz:g} Hz on {self._imu_pub.topic_name}, frame '
+            f'{cfg.imu_frame_id}, seed {cfg.scenario.seed}, motion '
+            f'{cfg.scenario.motion_profile}, realtime factor {cfg.realtime_factor:g}, '
+            f'errors {"on" if cfg.noise_enabled else "off"}')
+
+    def _due_count(self):
+        """Samples to publish this tick and the pacing lag in simulated seconds."""
+        cfg = self.config
+        if cfg.realtime_factor == 0.0:
+            if (self._next_index == 0 and self._imu_pub.get_subscription_count()
+                    < cfg.wait_for_subscribers):
+                return 0, 0.0
+            due = self._next_index + self._block
+        else:
+            now = time.monotonic()
+            if self._wall_start is None:
+                if self._imu_pub.get_subscription_count() < cfg.wait_for_subscribers:
+                    return 0, 0.0
+                self._wall_start = now
+            due = math.floor((now - self._wall_start) * cfg.realtime_factor * cfg.rate_hz) + 1
+        if self._end_index is not None:
+            due = min(due, self._end_index)
+        behind = due - self._next_index
+        count = min(max(behind, 0), self._block)
+        return count, (behind - count) / cfg.rate_hz
+
+    def _on_tick(self):
+        count, self._lag_s = self._due_count()
+        while count > 0:
+            if self._buffer is None or self._buffer_pos == len(self._buffer.index):
+                self._buffer = self._generate_block()
+                self._buffer_pos = 0
+            take = min(count, len(self._buffer.index) - self._buffer_pos)
+            self._publish_rows(self._buffer, self._buffer_pos, take)
+            self._buffer_pos += take
+            self._next_index += take
+            count -= take
+        if self._end_index is not None and self._next_index >= self._end_index \
+                and not self.finished.done():
+            self._timer.cancel()
+            self.get_logger().info(f'duration_s reached: {self._published} samples published')
+            self.finished.set_result(0)
+
+    def _generate_block(self):
+        batch = self._sampler.next(self._block)
+        if not np.all(batch.valid):
+            bad = int(np.count_nonzero(~batch.valid))
+            self._skipped += bad
+            self.get_logger().warn(f'non-finite truth from the trajectory: skipping {bad} '
+                                   f'samples from n = {int(batch.index[0])}',
+                                   throttle_duration_sec=1.0)
+        return batch
+
+    def _publish_rows(self, batch, start, count):
+        rate_hz = self.config.rate_hz
+        rows = slice(start, start + count)
+        omega, f = batch.omega[rows].tolist(), batch.f[rows].tolist()
+        valid = batch.valid[rows].tolist()
+        for i, n in enumerate(batch.index[rows].tolist()):
+            if not valid[i]:
+                continue
+            stamp_ns = sample_stamp_ns(self._epoch_ns, n, rate_hz)
+            self._imu_pub.publish(set_imu_sample(self._msg, stamp_ns, omega[i], f[i]))
+            self._last_stamp_ns = stamp_ns
+            self._published += 1
+
+    def _publish_diagnostics(self):
+        cfg = self.config
+        model = self._sampler.model
+        status = DiagnosticStatus(name=f'{self.get_name()}: IMU',
+                                  hardware_id='ADIS16488 (simulated)')
+        if self._lag_s > LAG_WARN_S:
+            status.level = DiagnosticStatus.WARN
+            status.message = f'{self._lag_s:.2f} s behind the real-time pacing target'
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = 'publishing'
+        bias = model.last_bias
+        values = {
+            'rate_hz': f'{cfg.rate_hz:g}',
+            'samples_published': str(self._published),
+            'samples_skipped': str(self._skipped),
+            'sim_time_s': f'{self._next_index / cfg.rate_hz:.3f}',
+            'lag_s': f'{self._lag_s:.3f}',
+            'realtime_factor': f'{cfg.realtime_factor:g}',
+            'seed': str(cfg.scenario.seed),
+            'gyro_bias_dps': ' '.join(f'{b / DEG:.5f}' for b in bias[:3]),
+            'accel_bias_mg': ' '.join(f'{b / GRAVITY_MPS2 * 1e3:.3f}' for b in bias[3:]),
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        # Stamped on the simulated clock, like the samples it reports on.
+        msg.header.stamp = ns_to_time(self._last_stamp_ns if self._last_stamp_ns is not None
+                                      else self._epoch_ns)
+        self._diag_pub.publish(msg)
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = Adis16488Node()
+    except (ParameterException, ValueError) as exc:
+        rclpy.logging.get_logger('adis16488_node').fatal(f'invalid parameter: {exc}')
+        rclpy.try_shutdown()
+        return EXIT_INVALID_CONFIG
+    exit_code = 0
+    try:
+        rclpy.spin_until_future_complete(node, node.finished)
+        if node.finished.done():
+            exit_code = node.finished.result()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return exit_code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,454 @@
+"""``stereo_camera_node``: the synthetic rolling-shutter stereo VLC camera of the rig.
+
+Renders the lit tunnel seen by the train-head stereo camera (``core.renderer``) on a
+simulated clock and publishes (relative names unless stated):
+
+* ``stereo/left/image_raw``, ``stereo/right/image_raw`` (sensor_msgs/Image, mono8;
+  reliable, keep last 5): identical stamps = epoch + t0, the start of row-0 exposure.
+* ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
+  reliable, transient local, depth 1): with every frame, same stamp; right
+  ``P[0,3] = −fx·baseline``.
+* ``ground_truth/pose`` (geometry_msgs/PoseStamped; reliable, depth 10): base_link in
+  map at the frame stamp.
+* ``ground_truth/odometry`` (nav_msgs/Odometry; reliable, depth 10): the same pose with
+  ``child_frame_id`` = base_link and the true twist in base_link axes.
+* ``ground_truth/spots`` (sensor_msgs/PointCloud2; reliable, depth 10): per-lamp truth,
+  fields in ``conversions.py`` / docs/arch/vlc_stereo_camera.md.
+* ``/clock`` (rosgraph_msgs/Clock; reliable, depth 10; absolute, as ROS time sources
+  expect) at ``clock_rate_hz`` when ``publish_clock``: exact ticks epoch + j/rate.
+* ``diagnostics`` (diagnostic_msgs/DiagnosticArray; reliable, depth 10) at 1 Hz wall
+  time: frames rendered, render time, lamps in view, lag behind real time.
+
+Threads: rendering runs on a worker thread that fills a small queue; a pacing thread
+publishes frames and clock ticks in simulated-time order, at ``realtime_factor`` ×
+real time (0 = as fast as possible). A frame is published when its last row has been
+read out (t0 + (H−1)·row_time + exposure). The executor thread only serves the
+diagnostics timer and the shutdown guard condition, so it stays responsive.
+With ``duration_s`` > 0 the node publishes every frame and tick with t < duration_s and
+exits 0. With ``wait_for_subscribers`` N > 0, simulated time starts only when both image
+topics have N subscribers (recordings and tests that need frame 0). Invalid parameters
+fail at start-up with a message and exit code 2. OpenCV runs single-threaded
+(``cv2.setNumThreads(1)``): the renderer is sized for one core, and the other nodes of
+the graph need the rest.
+"""
+from dataclasses import dataclass
+import queue
+import sys
+import threading
+import time
+
+import cv2
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from . import conversions
+from .core.camera import CameraIntrinsics, StereoRig
+from .core.lamp_map import LampMap, resolve_lamp_map_path
+from .core.renderer import RendererConfig, StereoRenderer
+from .core.sensor_noise import OpticsConfig, SensorConfig
+from .rig_params import declare_scenario_parameters
+
+EXIT_INVALID_CONFIG = 2
+
+
+def _desc(text, lo=None, hi=None, integer=False, ptype=None):
+    d = ParameterDescriptor(description=text)
+    if ptype is not None:
+        d.type = ptype
+    if lo is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+_STR = ParameterType.PARAMETER_STRING
+# name, default, descriptor. Documented key by key in config/stereo_camera_node.yaml.
+NODE_PARAMETERS = (
+    ('map_frame_id', 'map', _desc('Frame of ground_truth/pose.', ptype=_STR)),
+    ('base_frame_id', 'base_link', _desc('Train-head platform frame: child_frame_id of '
+                                         'ground_truth/odometry.', ptype=_STR)),
+    ('left_frame_id', 'camera_left_optical_frame', _desc('Left image and camera_info frame.',
+                                                         ptype=_STR)),
+    ('right_frame_id', 'camera_right_optical_frame', _desc('Right image and camera_info '
+                                                           'frame.', ptype=_STR)),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = share/vlc_stereo_camera/config/"
+                                'lamp_map.yaml.', ptype=_STR)),
+    ('image_width', 1280, _desc('Image width, px.', 64, 4096, integer=True)),
+    ('image_height', 720, _desc('Image height (rows), px.', 48, 4096, integer=True)),
+    ('fx', 1040.0, _desc('Focal length, px (3.9 mm / 3.75 um).', 50.0, 10000.0)),
+    ('fy', 1040.0, _desc('Focal length, px.', 50.0, 10000.0)),
+    ('cx', 639.5, _desc('Principal point u, px (pixel centres at integers).', 0.0, 4096.0)),
+    ('cy', 359.5, _desc('Principal point v, px.', 0.0, 4096.0)),
+    ('baseline_m', StereoRig.baseline_m, _desc('Stereo baseline along the left optical x axis, m.',
+                               0.01, 2.0)),
+    ('mount_x_m', StereoRig.mount_xyz_m[0], _desc('Left optical centre in base_link: x, m.',
+                                                  -20.0, 20.0)),
+    ('mount_y_m', StereoRig.mount_xyz_m[1], _desc('Left optical centre in base_link: y '
+                                                  '(left), m.', -5.0, 5.0)),
+    ('mount_z_m', StereoRig.mount_xyz_m[2], _desc('Left optical centre in base_link: z '
+                                                  '(up), m.', -5.0, 10.0)),
+    ('placement_angle_deg', StereoRig.placement_angle_deg,
+     _desc('Optical axis turned from the wall normal toward the running direction '
+           '(paper eq. 16), deg.', 0.0, 89.0)),
+    ('pitch_deg', StereoRig.pitch_deg, _desc('Optical axis tilted down, deg.', -60.0, 80.0)),
+    ('fps', 30.0, _desc('Frame rate, frames/s.', 1.0, 240.0)),
+    ('row_time_s', 30e-6, _desc('Rolling-shutter line time: row r starts exposing at '
+                                't0 + r*row_time_s, s.', 1e-6, 1e-3)),
+    ('exposure_s', 50e-6, _desc('Exposure time of each row, s.', 1e-6, 0.1)),
+    ('chip_rate_hz', 10000.0, _desc('Nominal VLC chip rate, chips/s (VLC_PROTOCOL.md).',
+                                    2000.0, 40000.0)),
+    ('off_level', 0.05, _desc('Lamp output in an "off" chip, fraction of "on".', 0.0, 0.99)),
+    ('lamp_clock_ppm', 100.0, _desc('Each lamp chip-rate error is uniform in +-this, ppm.',
+                                    0.0, 20000.0)),
+    ('lamp_diameter_m', 0.0, _desc('Lamp disc diameter, m; 0 = each lamp\'s diameter_m '
+                                   'from the lamp map (0.2 m).', 0.0, 2.0)),
+    ('lamp_half_power_angle_deg', 60.0, _desc('Lamp field angle (half-power semi-angle) '
+                                              'of the generalized Lambertian, deg.',
+                                              1.0, 89.0)),
+    ('lamp_luminous_flux_lm', 2100.0, _desc('Lamp luminous flux when "on" (21 W x '
+                                            '100 lm/W), lm.', 1.0, 1.0e6)),
+    ('f_number', 2.0, _desc('Lens f-number.', 0.5, 32.0)),
+    ('lens_transmission', 0.9, _desc('Lens transmission.', 0.01, 1.0)),
+    ('quantum_efficiency', 0.5, _desc('Sensor quantum efficiency over the white-LED '
+                                      'spectrum.', 0.01, 1.0)),
+    ('full_well_e', 10000.0, _desc('Pixel full-well capacity, electrons (= 255 DN).',
+                                   100.0, 1.0e6)),
+    ('read_noise_e', 3.0, _desc('Read noise, electrons rms.', 0.0, 1000.0)),
+    ('dark_current_e_per_s', 50.0, _desc('Dark current, electrons/s per pixel.',
+                                         0.0, 1.0e6)),
+    ('background_dn', 4.0, _desc('Mean dim-tunnel background, DN.', 0.0, 100.0)),
+    ('psf_sigma_px', 0.7, _desc('Optics + pixel PSF core Gaussian sigma, px.', 0.0, 10.0)),
+    ('halo_sigma_px', 6.0, _desc('Halo (glare/blooming) Gaussian sigma, px.', 0.0, 50.0)),
+    ('halo_fraction', 0.02, _desc('Fraction of the light in the halo.', 0.0, 0.5)),
+    ('noise_bank_size', 16, _desc('Pre-rendered noisy background frames to pick from.',
+                                  1, 256, integer=True)),
+    ('realtime_factor', 1.0, _desc('Simulated seconds per wall second; 0 = as fast as '
+                                   'possible.', 0.0, 100.0)),
+    ('duration_s', 0.0, _desc('Simulated duration, s; 0 = forever. The node exits 0 after '
+                              'it.', 0.0, 1.0e7)),
+    ('publish_clock', True, _desc('Publish /clock (simulated time).')),
+    ('clock_rate_hz', 100.0, _desc('/clock publication rate, Hz (simulated).', 1.0, 10000.0)),
+    ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until both image topics '
+                                      'have this many subscribers (0 = start at once).',
+                                      0, 100, integer=True)),
+)
+
+
+@dataclass
+class StereoCameraNodeConfig:
+    """Typed node parameters (see NODE_PARAMETERS for meaning and units)."""
+
+    map_frame_id: str
+    base_frame_id: str
+    left_frame_id: str
+    right_frame_id: str
+    lamp_map_path: str
+    image_width: int
+    image_height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    mount_x_m: float
+    mount_y_m: float
+    mount_z_m: float
+    placement_angle_deg: float
+    pitch_deg: float
+    fps: float
+    row_time_s: float
+    exposure_s: float
+    chip_rate_hz: float
+    off_level: float
+    lamp_clock_ppm: float
+    lamp_diameter_m: float
+    lamp_half_power_angle_deg: float
+    lamp_luminous_flux_lm: float
+    f_number: float
+    lens_transmission: float
+    quantum_efficiency: float
+    full_well_e: float
+    read_noise_e: float
+    dark_current_e_per_s: float
+    background_dn: float
+    psf_sigma_px: float
+    halo_sigma_px: float
+    halo_fraction: float
+    noise_bank_size: int
+    realtime_factor: float
+    duration_s: float
+    publish_clock: bool
+    clock_rate_hz: float
+    wait_for_subscribers: int
+
+    def renderer_config(self, epoch_s):
+        """The RendererConfig these parameters describe (ValueError if inconsistent)."""
+        return RendererConfig(
+            intrinsics=CameraIntrinsics(width=self.image_width, height=self.image_height,
+                                        fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy),
+            baseline_m=self.baseline_m,
+            mount_xyz_m=(self.mount_x_m, self.mount_y_m, self.mount_z_m),
+            placement_angle_deg=self.placement_angle_deg, pitch_deg=self.pitch_deg,
+            fps=self.fps, row_time_s=self.row_time_s, exposure_s=self.exposure_s,
+            epoch_s=epoch_s, chip_rate_hz=self.chip_rate_hz, off_level=self.off_level,
+            lamp_clock_ppm=self.lamp_clock_ppm, lamp_diameter_m=self.lamp_diameter_m,
+            optics=OpticsConfig(luminous_flux_lm=self.lamp_luminous_flux_lm,
+                                half_power_angle_deg=self.lamp_half_power_angle_deg,
+                                f_number=self.f_number,
+                                lens_transmission=self.lens_transmission,
+                                quantum_efficiency=self.quantum_efficiency),
+            sensor=SensorConfig(full_well_e=self.full_well_e, read_noise_e=self.read_noise_e,
+                                dark_current_e_per_s=self.dark_current_e_per_s,
+                                background_dn=self.background_dn,
+                                noise_bank_size=self.noise_bank_size),
+            psf_sigma_px=self.psf_sigma_px, halo_sigma_px=self.halo_sigma_px,
+            halo_fraction=self.halo_fraction)
+
+
+class StereoCameraNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('stereo_camera_node', **kwargs)
+        self.scenario = declare_scenario_parameters(self)
+        for name, default, descriptor in NODE_PARAMETERS:
+            self.declare_parameter(name, default, descriptor)
+        self.config = cfg = StereoCameraNodeConfig(
+            **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
+        renderer_config = cfg.renderer_config(self.scenario.epoch_s)
+        trajectory = self.scenario.trajectory()
+        lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path))
+        self.renderer = StereoRenderer(renderer_config, lamp_map, trajectory,
+                                       seed=self.scenario.seed)
+        self._infos = self.renderer.camera_info_dicts()
+        self._readout_s = ((cfg.image_height - 1) * cfg.row_time_s + cfg.exposure_s)
+
+        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_images = [self.create_publisher(Image, f'stereo/{side}/image_raw', image_qos)
+                           for side in ('left', 'right')]
+        self.pub_infos = [self.create_publisher(CameraInfo, f'stereo/{side}/camera_info',
+                                                latched) for side in ('left', 'right')]
+        self.pub_pose = self.create_publisher(PoseStamped, 'ground_truth/pose', 10)
+        self.pub_odom = self.create_publisher(Odometry, 'ground_truth/odometry', 10)
+        self.pub_spots = self.create_publisher(PointCloud2, 'ground_truth/spots', 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.pub_clock = (self.create_publisher(ClockMsg, '/clock', 10)
+                          if cfg.publish_clock else None)
+
+        self.finished = Future()
+        self.exit_code = 0
+        self._stop = threading.Event()
+        self._frames = queue.Queue(maxsize=2)
+        self._stats_lock = threading.Lock()
+        self._render_ms = []
+        self._frames_rendered = 0
+        self._lamps_in_view = 0
+        self._lag_s = 0.0
+        self._sim_ns = conversions.stamp_ns(self.scenario.epoch_s)
+        self._done_guard = self.create_guard_condition(self._on_done)
+        self.create_timer(1.0, self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._threads = [threading.Thread(target=self._render_loop, name='render', daemon=True),
+                         threading.Thread(target=self._pace_loop, name='pace', daemon=True)]
+        for thread in self._threads:
+            thread.start()
+        self.get_logger().info(
+            f'rendering {cfg.image_width}x{cfg.image_height} stereo at {cfg.fps} fps, '
+            f'realtime_factor {cfg.realtime_factor}, {len(lamp_map)} lamps, '
+            f'motion {self.scenario.motion_profile}, seed {self.scenario.seed}')
+
+    # ------------------------------------------------------------ worker threads
+    def _render_loop(self):
+        cfg = self.config
+        k = 0
+        try:
+            while not self._stop.is_set():
+                t0 = k / cfg.fps
+                if cfg.duration_s > 0.0 and t0 >= cfg.duration_s:
+                    self._put(None)
+                    return
+                start = time.perf_counter()
+                frame = self.renderer.render(k)
+                elapsed_ms = 1e3 * (time.perf_counter() - start)
+                with self._stats_lock:
+                    self._render_ms.append(elapsed_ms)
+                    self._frames_rendered += 1
+                    self._lamps_in_view = len(frame.truth)
+                self._put(frame)
+                k += 1
+        except Exception as exc:  # noqa: BLE001 — report any renderer failure, then stop
+            self.get_logger().error(f'rendering failed: {exc!r}')
+            self.exit_code = 1
+            self._put(None)
+
+    def _put(self, item):
+        while not self._stop.is_set():
+            try:
+                self._frames.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def _pace_loop(self):
+        try:
+            self._pace()
+        except Exception as exc:  # noqa: BLE001 — publishing fails once the context is down
+            if self._stop.is_set() or not self.context.ok():
+                return
+            self.get_logger().error(f'publishing failed: {exc!r}')
+            self.exit_code = 1
+            self._done_guard.trigger()
+
+    def _pace(self):
+        """Publish clock ticks and frames in simulated-time order at the pacing rate."""
+        cfg = self.config
+        rtf = cfg.realtime_factor
+        while (not self._stop.is_set() and min(
+                pub.get_subscription_count() for pub in self.pub_images)
+                < cfg.wait_for_subscribers):
+            self._stop.wait(0.05)
+        wall0 = time.monotonic()
+        tick = 0
+        frame = None
+        frames_done = False
+        while not self._stop.is_set():
+            if frame is None and not frames_done:
+                frame = self._next_frame()
+                frames_done = frame is None
+                if self._stop.is_set():
+                    break
+            t_frame = frame.t0_s + self._readout_s if frame is not None else np.inf
+            t_tick = tick / cfg.clock_rate_hz if self.pub_clock is not None else np.inf
+            if cfg.duration_s > 0.0 and t_tick >= cfg.duration_s:
+                t_tick = np.inf
+            t_next = min(t_frame, t_tick)
+            if not np.isfinite(t_next):
+                break
+            if rtf > 0.0:
+                lag = time.monotonic() - (wall0 + t_next / rtf)
+                self._lag_s = max(lag, 0.0)
+                if lag < 0.0:
+                    self._stop.wait(-lag)
+                elif lag > 0.5:
+                    # Far behind real time (slow machine): restart the pacing from here
+                    # instead of bursting the backlog out.
+                    self.get_logger().warn(f'simulation {lag:.2f} s behind real time',
+                                           throttle_duration_sec=5.0)
+                    wall0 += lag
+            if t_tick <= t_frame:
+                ns = conversions.stamp_ns(self.scenario.epoch_s, t_tick)
+                self.pub_clock.publish(ClockMsg(clock=conversions.time_msg(ns)))
+                self._sim_ns = ns
+                tick += 1
+            else:
+                self._publish_frame(frame)
+                frame = None
+        if self._stop.is_set():
+            return
+        # duration_s reached: let reliable subscribers receive the last frames first.
+        for pub in self.pub_images:
+            pub.wait_for_all_acked(Duration(seconds=2.0))
+        self._done_guard.trigger()
+
+    def _next_frame(self):
+        while not self._stop.is_set():
+            try:
+                return self._frames.get(timeout=0.1)
+            except queue.Empty:
+                continue
+        return None
+
+    def _publish_frame(self, frame):
+        cfg = self.config
+        ns = conversions.stamp_ns(self.scenario.epoch_s, frame.t0_s)
+        left_hdr = conversions.header(ns, cfg.left_frame_id)
+        right_hdr = conversions.header(ns, cfg.right_frame_id)
+        self.pub_images[0].publish(conversions.image_msg(frame.left, left_hdr))
+        self.pub_images[1].publish(conversions.image_msg(frame.right, right_hdr))
+        self.pub_infos[0].publish(conversions.camera_info_msg(self._infos[0], left_hdr))
+        self.pub_infos[1].publish(conversions.camera_info_msg(self._infos[1], right_hdr))
+        map_hdr = conversions.header(ns, cfg.map_frame_id)
+        self.pub_pose.publish(conversions.pose_msg(frame.base_position_m, frame.base_quat_xyzw,
+                                                   map_hdr))
+        self.pub_odom.publish(conversions.odometry_msg(frame, map_hdr, cfg.base_frame_id))
+        self.pub_spots.publish(conversions.records_to_cloud(
+            conversions.truth_records(frame.truth, frame.t0_s), left_hdr))
+
+    # ------------------------------------------------------------ executor side
+    def _on_done(self):
+        if not self.finished.done():
+            self.finished.set_result(self.exit_code)
+
+    def _publish_diagnostics(self):
+        cfg = self.config
+        with self._stats_lock:
+            render_ms, self._render_ms = self._render_ms, []
+            frames, lamps = self._frames_rendered, self._lamps_in_view
+        status = DiagnosticStatus(name=f'{self.get_name()}: renderer',
+                                  hardware_id='synthetic_stereo_rig',
+                                  level=DiagnosticStatus.OK, message='rendering')
+        budget_ms = 1e3 / (cfg.fps * max(cfg.realtime_factor, 1e-9))
+        if render_ms and cfg.realtime_factor > 0.0 and np.median(render_ms) > budget_ms:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'rendering slower than the frame period'
+        values = {'frames_rendered': str(frames),
+                  'frames_last_second': str(len(render_ms)),
+                  'render_ms_median': f'{np.median(render_ms):.2f}' if render_ms else 'nan',
+                  'render_ms_max': f'{np.max(render_ms):.2f}' if render_ms else 'nan',
+                  'lamps_in_view': str(lamps),
+                  'lag_behind_realtime_s': f'{self._lag_s:.3f}'}
+        status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
+        self.pub_diag.publish(DiagnosticArray(header=conversions.header(self._sim_ns, ''),
+                                              status=[status]))
+
+    def stop(self):
+        """Stop and join the worker threads."""
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=5.0)
+
+
+def main(args=None):
+    cv2.setNumThreads(1)
+    rclpy.init(args=args)
+    try:
+        node = StereoCameraNode()
+    except (ParameterException, ValueError, OSError) as exc:
+        rclpy.logging.get_logger('stereo_camera_node').fatal(
+            f'invalid configuration, not starting: {exc}')
+        rclpy.try_shutdown()
+        sys.exit(EXIT_INVALID_CONFIG)
+    exit_code = 0
+    try:
+        rclpy.spin_until_future_complete(node, node.finished)
+        exit_code = node.exit_code
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    sys.exit(exit_code)
+
+
+if __name__ == '__main__':
+    main()
