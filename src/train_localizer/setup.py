@@ -24,6 +24,7 @@ setup(
             'train_localizer_node = train_localizer.train_localizer_node:main',
             'bag_recorder = train_localizer.bagtools.recorder_node:main',
             'bag_player = train_localizer.bagtools.player_node:main',
+            'run_evaluation = train_localizer.evaluation.cli:main',
         ],
     },
 )
