@@ -21,7 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            
+            'imu_compensator_node = imu_compensator.imu_compensator_node:main',
+            'compensation_benchmark = imu_compensator.benchmark:main',
         ],
     },
 )

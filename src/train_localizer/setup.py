@@ -25,6 +25,7 @@ setup(
             'bag_recorder = train_localizer.bagtools.recorder_node:main',
             'bag_player = train_localizer.bagtools.player_node:main',
             'run_evaluation = train_localizer.evaluation.cli:main',
+            'localizer_benchmark = train_localizer.benchmark:main',
         ],
     },
 )

@@ -21,7 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            
+            'vlc_decoder_node = vlc_decoder.vlc_decoder_node:main',
+            'decoder_benchmark = vlc_decoder.benchmark:main',
         ],
     },
 )

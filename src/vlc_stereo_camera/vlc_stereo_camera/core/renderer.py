@@ -33,12 +33,15 @@ What is rendered, per frame and camera (see docs/arch/vlc_stereo_camera.md):
   u + ½] (analytically anti-aliased along u, supersampled along v). This gives the true
   ellipse and the perspective eccentricity between the ellipse centre and the projected
   disc centre.
-* Row signal = coverage × "on" electrons (``OpticsConfig``: luminance, cos⁴ vignetting)
-  × the exact mean of the lamp's chip waveform over the row's exposure window
-  (``LampWaveform.mean_over``; times since the epoch, never absolute).
-* Optics PSF: Gaussian core (``psf_sigma_px``) plus a faint wide halo
-  (``halo_fraction`` of the light in a Gaussian of ``halo_sigma_px``), in electrons
-  before saturation; then shot/dark/read noise, full-well saturation, 8-bit ADC.
+* Optics: coverage × "on" electrons (``OpticsConfig``: luminance, cos⁴ vignetting),
+  blurred by the PSF — a Gaussian core (``psf_sigma_px``) plus a faint wide halo
+  (``halo_fraction`` of the light in a Gaussian of ``halo_sigma_px``).
+* Rolling shutter: each row of that blurred image is then multiplied by the exact mean
+  of the lamp's chip waveform over the row's exposure window (``LampWaveform.mean_over``;
+  times since the epoch, never absolute). The modulation comes after the blur because
+  the optics blur the light at every instant and the row integrates it over its own
+  exposure: the halo's rows carry their own chips and stripes are not smeared.
+* Sensor: shot/dark/read noise, full-well saturation, 8-bit ADC.
 * Each lamp's clock: packet phase uniform over one packet and chip-rate error uniform
   in ±``lamp_clock_ppm``, drawn from (seed, UID), so a lamp keeps its clock whichever
   frames are rendered.
@@ -486,6 +489,8 @@ class StereoRenderer:
             levels = self.lamp_waveform(g.lamp.uid).mean_over(edges[:, :-1], edges[:, 1:])
         else:
             levels = np.ones((len(rows), K))
+        steady = np.ones_like(levels)
+        row_level = levels.mean(axis=1).astype(np.float32)
         t_mid = 0.5 * (edges[:, :-1] + edges[:, 1:])
         on_e = c.optics.on_electrons(g.area_m2, truth['cos_phi'], c.exposure_s)
         pose = self._poses.at(t_mid)
@@ -496,14 +501,19 @@ class StereoRenderer:
                 continue
             centres, R_mc = self._camera_poses(None, camera, pose)
             sl = slice(roi[2] - v_lo, roi[3] - v_lo)
+            # The optics blur the lamp's image; the sensor row then integrates that
+            # blurred light while the lamp is modulated. So coverage is computed steady
+            # ("on"), blurred by the PSF, and only then multiplied by each row's mean lamp
+            # output: halo rows carry the stripes of their own exposure time, sharp.
             res = self._coverage(g, roi, camera, centres.reshape(len(rows), K, 3)[sl],
-                                 R_mc.reshape(len(rows), K, 3, 3)[sl], levels[sl])
+                                 R_mc.reshape(len(rows), K, 3, 3)[sl], steady[sl])
             if res is None or not res[1].any():
                 out.append(None)
                 continue
             weighted, covered = res
             electrons = (weighted * on_e).astype(np.float32)
             electrons *= self._vignette[roi[2]:roi[3], roi[0]:roi[1]]
+            electrons = self._apply_psf(electrons) * row_level[sl, None]
             idx = np.flatnonzero(covered)
             out.append((roi, electrons, (roi[2] + int(idx[0]), roi[2] + int(idx[-1]))))
         return out
@@ -595,7 +605,6 @@ class StereoRenderer:
                 signal = np.zeros((v1 - v0, u1 - u0), np.float32)
                 for (a0, a1, b0, b1), lamp_e in members:
                     signal[b0 - v0:b1 - v0, a0 - u0:a1 - u0] += lamp_e
-                signal = self._apply_psf(signal)
                 if electrons:
                     images[cam][v0:v1, u0:u1] += signal
                 else:

@@ -1,0 +1,124 @@
+"""sensor_msgs/Imu and geometry_msgs messages ↔ the arrays of ``imu_compensator.core``.
+
+Consumers of ``imu/data`` (the localizer) can use :func:`imu_attitude` to feed an
+:class:`~imu_compensator.core.attitude_buffer.AttitudeBuffer`::
+
+    t_s, quat, cov = imu_attitude(msg)
+    buffer.push(t_s, quat, cov)
+    q = buffer.at(exposure_mid_time_s)
+"""
+import math
+
+import numpy as np
+
+NS_PER_S = 1_000_000_000
+
+
+def stamp_to_s(stamp):
+    """builtin_interfaces/Time → float seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def stamp_to_ns(stamp):
+    """builtin_interfaces/Time → integer nanoseconds."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def imu_sample(msg):
+    """(t_s, gyro (3,) rad/s, specific force (3,) m/s²) of a sensor_msgs/Imu."""
+    av, la = msg.angular_velocity, msg.linear_acceleration
+    return (stamp_to_s(msg.header.stamp), np.array([av.x, av.y, av.z]),
+            np.array([la.x, la.y, la.z]))
+
+
+def imu_attitude(msg):
+    """(t_s, quat_xyzw (4,), covariance (3, 3) rad² or None) of an ``imu/data`` message.
+
+    The covariance is None when the message marks it unknown (REP-145:
+    ``orientation_covariance[0] == -1``).
+    """
+    o = msg.orientation
+    cov = np.array(msg.orientation_covariance, dtype=float).reshape(3, 3)
+    return (stamp_to_s(msg.header.stamp), np.array([o.x, o.y, o.z, o.w]),
+            None if cov[0, 0] == -1.0 else cov)
+
+
+def _covariance(values):
+    """3×3 covariance of a message field, or None when unknown (−1) or all zero."""
+    cov = np.array(values, dtype=float).reshape(3, 3)
+    if cov[0, 0] < 0.0 or not np.any(cov) or not np.all(np.isfinite(cov)):
+        return None
+    return cov
+
+
+def fill_imu_data(out, header, result, orientation_floor_var_rad2, gyro_white_var,
+                  gyro_bias_var, rate_cov_in, accel_cov_in, r_base_imu=None):
+    """Write one compensated sample into the reusable message ``out``; returns it.
+
+    Parameters
+    ----------
+    out : sensor_msgs.msg.Imu
+        Message to overwrite (its ``header.frame_id`` is kept: the base frame).
+    header : std_msgs.msg.Header
+        Header of the raw sample; its stamp is copied (the sample time, never now()).
+    result : imu_compensator.core.compensator.SampleResult
+        An accepted sample.
+    orientation_floor_var_rad2 : ndarray (3,)
+        Variance added to the filter's roll, pitch, heading variance (model errors the
+        filter does not carry: gyro scale factor, vibration leakage), rad².
+    gyro_white_var : float
+        Per-sample gyro white-noise variance used when the raw message has none, (rad/s)².
+    gyro_bias_var : ndarray (3,)
+        Variance of the bias estimate, (rad/s)², added to the rate covariance.
+    rate_cov_in, accel_cov_in : sequence of 9 floats
+        Covariances of the raw message.
+    r_base_imu : ndarray (3, 3), optional
+        Mount rotation imu_link → base_link; rotates the raw covariances.
+    """
+    out.header.stamp = header.stamp
+    q = result.quat_xyzw
+    o = out.orientation
+    o.x, o.y, o.z, o.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    cov = result.covariance.copy()
+    cov.flat[::4] += orientation_floor_var_rad2
+    out.orientation_covariance = cov.ravel().tolist()
+
+    w = result.gyro_rps
+    av = out.angular_velocity
+    av.x, av.y, av.z = float(w[0]), float(w[1]), float(w[2])
+    rate_cov = _covariance(rate_cov_in)
+    if rate_cov is None:
+        rate_cov = np.eye(3) * gyro_white_var
+    elif r_base_imu is not None:
+        rate_cov = r_base_imu @ rate_cov @ r_base_imu.T
+    rate_cov = rate_cov + np.diag(gyro_bias_var)
+    out.angular_velocity_covariance = rate_cov.ravel().tolist()
+
+    f = result.accel_mps2
+    la = out.linear_acceleration
+    la.x, la.y, la.z = float(f[0]), float(f[1]), float(f[2])
+    acc_cov = _covariance(accel_cov_in)
+    if acc_cov is None:
+        out.linear_acceleration_covariance = [-1.0] + [0.0] * 8
+    else:
+        if r_base_imu is not None:
+            acc_cov = r_base_imu @ acc_cov @ r_base_imu.T
+        out.linear_acceleration_covariance = acc_cov.ravel().tolist()
+    return out
+
+
+def pose_heading(msg):
+    """(t_s, yaw rad, yaw variance rad² or nan) of a PoseWithCovarianceStamped.
+
+    The yaw is that of R = Rz·Ry·Rx of the pose's orientation; the variance is the
+    (yaw, yaw) element of the 6×6 covariance (index 35), nan when ≤ 0.
+    """
+    o = msg.pose.pose.orientation
+    x, y, z, w = o.x, o.y, o.z, o.w
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not (norm > 0.0 and math.isfinite(norm)):
+        return stamp_to_s(msg.header.stamp), float('nan'), float('nan')
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    var = float(msg.pose.covariance[35])
+    return stamp_to_s(msg.header.stamp), yaw, var if var > 0.0 else float('nan')

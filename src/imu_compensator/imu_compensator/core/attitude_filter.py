@@ -1,0 +1,558 @@
+"""Error-state Kalman filter for the camera-platform attitude and the gyro bias.
+
+State: attitude quaternion ``q`` (``base_link`` → ``map``, x, y, z, w) and gyro bias
+``b`` (rad/s, ``base_link`` axes). Error state (6,): ``δθ`` — a small rotation about the
+*map* axes, ``R_true = Exp(δθ) · R_est`` — and ``δb = b_true − b_est``. Working in the
+map frame keeps roll/pitch and heading errors on separate axes, which is what the
+track-attitude references below act on.
+
+Why this structure (paper §3.3.2: the camera heading is disturbed by −5.0…+7.5° by the
+car-body vibration and must be compensated with the IMU):
+
+* Fast attitude — the 0.3–3 Hz vibration — comes from integrating the gyro; it is
+  exact up to the gyro's scale-factor error (ADIS16488: 1 %, 1σ, not observable here).
+* Slow attitude comes from the *track*: on a known alignment the platform's roll,
+  pitch and heading relative to the track have a zero slow mean at speed (plus a known
+  heading offset), so each is pulled toward the track attitude with a long time
+  constant τ. This removes the drift of the gyro integral (turn-on and in-run bias)
+  while the pull barely follows the vibration. The pulls use the innovation
+  averaged over a sliding window of ``pull_window_s`` (W) — a moving average, not
+  blocks, which would alias the sway to slow beats: a sinusoid of amplitude A and
+  angular frequency ω then leaks into the estimate with amplitude
+  ≈ A·|sinc(ωW/2π)| / (ωτ) instead of A/(ωτ), ≈ 10× less for the 0.45 Hz heading sway
+  with W = 2 s. Buffered innovations are kept consistent with later corrections
+  (each entry stores innovation + the cumulative correction at its time). There is no
+  magnetometer in a tunnel, so heading has no other absolute reference; the residual
+  drift of the gyro bias through τ is the other side of the trade-off.
+* Gravity is an optional tilt reference (off by default): the ADIS16488 turn-on
+  accelerometer bias (16 mg, 1σ) alone tilts the gravity vector by ≈ 0.9°, and the
+  train's 1 m/s² traction/braking by ≈ 5.8°, both far more than the track reference's
+  error.
+* The gyro bias is refined whenever the train stands still (zero-angular-rate update,
+  the mean gyro reading over each update period) and, more slowly, through the pulls.
+
+Every update period Δ a pull is a pseudo-measurement ``z = mean over the last W of
+(angle_ref − angle_est)`` with variance ``R = q_g · τ² / Δ`` (q_g: gyro white-noise
+density²). For a first-order loop driven by the gyro noise this is the measurement
+variance whose steady-state Kalman gain is Δ/τ, i.e. whose time constant is τ.
+
+The quaternion is integrated at every sample (trapezoidal rate, pure-Python floats:
+a few µs); the covariance is propagated and the updates applied once per
+``update_period_s``, using the exact composition of the per-sample transition
+matrices (their attitude–bias blocks add up).
+"""
+from dataclasses import dataclass
+from collections import deque
+import math
+
+import numpy as np
+
+from imu_compensator.core.rotations import (quat_from_rotvec, quat_from_rpy, quat_multiply,
+                                            quat_normalize, quat_to_matrix)
+
+GRAVITY_MPS2 = 9.80665
+#: Time constant with which the running sway level of the pull gate is forgotten, s.
+SWAY_MEMORY_S = 600.0
+#: The sway gate looks at this newest fraction of the pull window: less lag when the
+#: sway fades while braking (the offset fades with it), still several sway periods long.
+SWAY_GATE_FRACTION = 0.5
+_DEG = math.pi / 180.0
+
+
+@dataclass
+class AttitudeFilterConfig:
+    """Noise model, references and tuning of :class:`AttitudeFilter` (SI, radians).
+
+    Attributes
+    ----------
+    gyro_noise_density_rps_rthz : float
+        Gyro white-noise density (angle random walk), rad/s/√Hz. ADIS16488: 0.26 °/√h.
+    gyro_bias_random_walk_rps2_rthz : float
+        Density of the bias random walk the filter assumes, rad/s²/√Hz (rad/s/√s); it
+        stands in for the sensor's in-run bias wander (a 5.1 °/h flicker floor).
+    initial_gyro_bias_rps : tuple of 3 floats
+        Bias the filter starts from, rad/s (a calibration, if one is known).
+    initial_gyro_bias_std_rps : float
+        1σ of the bias at start, rad/s. ADIS16488 turn-on bias: 0.2 °/s.
+    initial_attitude_std_rad : tuple of 3 floats
+        1σ of roll, pitch, heading at a cold start, rad: the filter starts at the
+        track attitude, but a moving platform may be anywhere in its sway envelope, so
+        the first full pull window sets the attitude.
+    aligned_attitude_std_rad : tuple of 3 floats
+        1σ of roll, pitch, heading after a static alignment (standing on the track:
+        only the track irregularity separates platform and track), rad. Small, so that
+        after departure the pulls act at their time constant instead of chasing the
+        sway with an optimal but over-confident gain.
+    tilt_time_constant_s : float
+        τ of the roll and pitch pull toward the track attitude while moving, s; 0 = off.
+    heading_time_constant_s : float
+        τ of the heading pull toward the track heading (+ offset) while moving, s;
+        0 = off.
+    pull_window_s : float
+        W: the pull innovations are averaged over this much moving time, s.
+    pull_hold_s : float
+        The pulls act only while moving, and only once the train has been moving for
+        this long (the window then fills, so the first pull comes ``pull_hold_s + W``
+        after departure), s. Standing, the attitude is held and the bias learnt from
+        the zero-rate update; the track irregularity under a standing train is a
+        constant offset that a pull would turn into an error. Right after departure
+        the car body has not reached its running attitude (the rig scales the sway
+        and the heading offset with speed up to 20 km/h, 5.6 s at 1 m/s²), so pulling
+        toward the running heading offset then would bias the heading.
+    pull_min_sway_ratio : float
+        The pulls act only while the RMS of the bias-corrected angular rate over the
+        newest half of the pull window (the car-body sway) is at least this fraction of
+        the running sway level (the largest whole-window RMS seen, forgotten with time
+        constant ``SWAY_MEMORY_S``). The sway is the IMU's own evidence that the train runs at
+        speed, where the slow-mean assumption holds: the rig's sway (≈ 0.22 rad/s RMS
+        from 20 km/h) and heading offset both fade below 20 km/h, so 0.8 stops the
+        pulls under ≈ 16 km/h, e.g. while braking to a stop — a pull toward the offset
+        then would leave ≈ 0.3° of error for the whole following standstill. 0 disables.
+    pull_min_sway_rps : float
+        Absolute floor of that gate, rad/s (well above the gyro noise).
+    track_roll_rad, track_pitch_rad, track_heading_rad : float
+        Track attitude in ``map`` (cant, grade as nose-down pitch, direction); 0, 0, 0
+        on the default straight level track.
+    heading_offset_rad : float
+        Known slow mean of the platform heading relative to the track while moving
+        (rig default 1.25°, the centre of the −5.0…+7.5° disturbance), rad.
+    gravity_time_constant_s : float
+        τ of the optional gravity (accelerometer) tilt reference, s; 0 = off.
+    gravity_gate_mps2 : float
+        A gravity update is skipped when | |mean f| − g | exceeds this, m/s².
+    update_period_s : float
+        Covariance propagation and zero-rate / gravity updates happen this often, s.
+    zero_rate_std_rps : float
+        1σ of one gyro sample in the zero-rate update, rad/s; ≤ 0 uses the white
+        noise per sample (density·√rate).
+    gravity_mps2 : float
+        Local gravity, m/s².
+    """
+
+    gyro_noise_density_rps_rthz: float = 0.26 * _DEG / 60.0
+    gyro_bias_random_walk_rps2_rthz: float = 2.0e-6
+    initial_gyro_bias_rps: tuple = (0.0, 0.0, 0.0)
+    initial_gyro_bias_std_rps: float = 0.2 * _DEG
+    initial_attitude_std_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
+    aligned_attitude_std_rad: tuple = (0.02 * _DEG, 0.02 * _DEG, 0.02 * _DEG)
+    tilt_time_constant_s: float = 10.0
+    heading_time_constant_s: float = 10.0
+    pull_window_s: float = 4.0
+    pull_hold_s: float = 6.0
+    pull_min_sway_ratio: float = 0.8
+    pull_min_sway_rps: float = 0.02
+    track_roll_rad: float = 0.0
+    track_pitch_rad: float = 0.0
+    track_heading_rad: float = 0.0
+    heading_offset_rad: float = 1.25 * _DEG
+    gravity_time_constant_s: float = 0.0
+    gravity_gate_mps2: float = 1.0
+    update_period_s: float = 0.05
+    zero_rate_std_rps: float = 0.0
+    gravity_mps2: float = GRAVITY_MPS2
+
+    def __post_init__(self):
+        positive = ('gyro_noise_density_rps_rthz', 'initial_gyro_bias_std_rps',
+                    'pull_window_s', 'gravity_gate_mps2', 'update_period_s', 'gravity_mps2')
+        non_negative = ('gyro_bias_random_walk_rps2_rthz', 'tilt_time_constant_s', 'pull_hold_s',
+                        'pull_min_sway_rps', 'pull_min_sway_ratio',
+                        'heading_time_constant_s', 'gravity_time_constant_s')
+        for name in positive:
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
+                raise ValueError(f'{name} must be finite and > 0, got {getattr(self, name)}')
+        for name in non_negative:
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {getattr(self, name)}')
+        for name in ('initial_gyro_bias_rps', 'initial_attitude_std_rad',
+                     'aligned_attitude_std_rad'):
+            if len(getattr(self, name)) != 3:
+                raise ValueError(f'{name} needs 3 values')
+        if min(self.initial_attitude_std_rad) <= 0.0 or min(self.aligned_attitude_std_rad) <= 0.0:
+            raise ValueError('initial_attitude_std_rad and aligned_attitude_std_rad must be > 0')
+        for tau in (self.tilt_time_constant_s, self.heading_time_constant_s):
+            if 0.0 < tau < self.pull_window_s:
+                raise ValueError('pull time constants must be 0 (off) or >= pull_window_s')
+        if self.update_period_s > self.pull_window_s:
+            raise ValueError('update_period_s must not exceed pull_window_s')
+
+
+def _wrap(angle_rad):
+    """Wrap a float angle to [−π, π)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _rpy_of(x, y, z, w):
+    """Roll, pitch, yaw of a unit quaternion (floats); R = Rz·Ry·Rx."""
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+class AttitudeFilter:
+    """ESKF over attitude and gyro bias; see the module docstring.
+
+    Parameters
+    ----------
+    config : AttitudeFilterConfig
+    """
+
+    def __init__(self, config=None):
+        self.config = config or AttitudeFilterConfig()
+        self.initialized = False
+        self._sway_ref2 = 0.0
+        self.initialize()
+        self.initialized = False
+
+    # ------------------------------------------------------------------ set-up
+    def initialize(self, gyro_rps=None, aligned_gyro_bias_rps=None, gyro_bias_std_rps=None):
+        """Start at the track attitude with the configured bias and covariance.
+
+        Parameters
+        ----------
+        gyro_rps : array_like (3,), optional
+            Latest gyro sample, kept for the trapezoidal rate average of the next step.
+        aligned_gyro_bias_rps : array_like (3,), optional
+            Static alignment: the platform stands on the track and this is the mean
+            rate it read meanwhile, rad/s. Starts from this bias (1σ
+            ``gyro_bias_std_rps``) and ``aligned_attitude_std_rad``; otherwise a cold
+            start from ``initial_gyro_bias_rps`` and ``initial_attitude_std_rad``.
+        gyro_bias_std_rps : float, optional
+            1σ of ``aligned_gyro_bias_rps``, rad/s.
+        """
+        c = self.config
+        self._q = [float(v) for v in quat_normalize(
+            quat_from_rpy(c.track_roll_rad, c.track_pitch_rad, c.track_heading_rad))]
+        aligned = aligned_gyro_bias_rps is not None
+        bias = aligned_gyro_bias_rps if aligned else c.initial_gyro_bias_rps
+        bias_std = gyro_bias_std_rps if aligned else c.initial_gyro_bias_std_rps
+        att_std = c.aligned_attitude_std_rad if aligned else c.initial_attitude_std_rad
+        self.gyro_bias_rps = np.array(bias, dtype=float)
+        self._bias = self.gyro_bias_rps.tolist()
+        self.P = np.zeros((6, 6))
+        self.P[:3, :3] = np.diag(np.square(att_std))
+        self.P[3:, 3:] = np.eye(3) * bias_std ** 2
+        self._last_gyro = None if gyro_rps is None else [float(v) for v in gyro_rps]
+        self._reset_accumulators()
+        self.initialized = True
+
+    def _reset_accumulators(self):
+        # Covariance propagation pending since the last flush: Σ R_i·dt_i and Σ dt_i.
+        self._sum_r_dt = [0.0] * 9
+        self._pending_dt = 0.0
+        self._pending_bias_dt = 0.0
+        self._pending_extra_var = 0.0
+        # Zero-rate update: sum of gyro readings and their count while standing.
+        self._zaru_sum = [0.0, 0.0, 0.0]
+        self._zaru_n = 0
+        # Gravity update: sum of specific force and the moving flag of the period.
+        self._grav_sum = [0.0, 0.0, 0.0]
+        self._grav_n = 0
+        self._grav_time = 0.0
+        self._grav_moving = False
+        self._since_update = 0.0
+        self._since_pull = 0.0
+        self._moving_s = 0.0
+        self._reset_pull()
+
+    def _reset_pull(self):
+        # Cumulative roll, pitch, heading corrections applied by any update since the
+        # window (re)started; each buffered innovation carries the value at its time.
+        self._corr = [0.0, 0.0, 0.0]
+        self._pull_ring = deque()
+        # Sums over the window: roll, pitch, heading innovations, squared sway rate.
+        self._pull_sum = [0.0, 0.0, 0.0, 0.0]
+        self._pull_time = 0.0
+        self._pull_full = False
+
+    # ------------------------------------------------------------------ per sample
+    def step(self, gyro_rps, accel_mps2, dt_s, stationary, sample_rate_hz,
+             extra_attitude_var_rad2=0.0):
+        """Process one sample: integrate the gyro, accumulate and apply the updates.
+
+        Parameters
+        ----------
+        gyro_rps : array_like (3,)
+            Measured angular rate at the end of the interval, rad/s, ``base_link``.
+        accel_mps2 : array_like (3,)
+            Measured specific force, m/s², ``base_link``.
+        dt_s : float
+            Interval since the previous sample, s (> 0).
+        stationary : bool
+            Verdict of the zero-velocity detector for this sample.
+        sample_rate_hz : float
+            Nominal IMU rate (noise per sample in the zero-rate update), Hz.
+        extra_attitude_var_rad2 : float
+            Variance added on every attitude axis, rad² (unknown motion over a gap).
+        """
+        gx, gy, gz = (float(v) for v in gyro_rps)
+        if stationary:
+            # Standing still the platform does not turn: hold the attitude instead of
+            # integrating noise (the bias is meanwhile learnt by the zero-rate update).
+            self._last_gyro = (gx, gy, gz)
+        else:
+            self._propagate(gx, gy, gz, dt_s)
+        self._pending_bias_dt += dt_s
+        self._pending_extra_var += extra_attitude_var_rad2
+        c = self.config
+        if stationary:
+            s = self._zaru_sum
+            s[0] += gx
+            s[1] += gy
+            s[2] += gz
+            self._zaru_n += 1
+        if c.gravity_time_constant_s > 0.0:
+            ax, ay, az = (float(v) for v in accel_mps2)
+            g = self._grav_sum
+            g[0] += ax
+            g[1] += ay
+            g[2] += az
+            self._grav_n += 1
+            self._grav_time += dt_s
+            self._grav_moving |= not stationary
+        if stationary:
+            self._moving_s = 0.0
+            if self._pull_ring:
+                # A standstill interrupts the window.
+                self._reset_pull()
+        else:
+            self._moving_s += dt_s
+            if self._moving_s >= c.pull_hold_s:
+                b = self._bias
+                sway2 = (gx - b[0]) ** 2 + (gy - b[1]) ** 2 + (gz - b[2]) ** 2
+                self._accumulate_pull(dt_s, sway2)
+        self._since_update += dt_s
+        self._since_pull += dt_s
+        if self._since_update >= c.update_period_s:
+            self._since_update = 0.0
+            self._flush_covariance()
+            if self._zaru_n:
+                self._apply_zero_rate(sample_rate_hz)
+            if self._grav_n:
+                self._apply_gravity()
+            if self._pull_full and self._at_speed():
+                self._apply_pull(self._since_pull)
+            self._since_pull = 0.0
+
+    def _propagate(self, gx, gy, gz, dt):
+        prev = self._last_gyro or (gx, gy, gz)
+        self._last_gyro = (gx, gy, gz)
+        b = self._bias
+        # Trapezoidal rate over the interval, minus the bias; q ← q ⊗ Exp(ω·dt).
+        wx = (0.5 * (prev[0] + gx) - b[0]) * dt
+        wy = (0.5 * (prev[1] + gy) - b[1]) * dt
+        wz = (0.5 * (prev[2] + gz) - b[2]) * dt
+        angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if angle > 1e-12:
+            s = math.sin(0.5 * angle) / angle
+            dx, dy, dz, dw = wx * s, wy * s, wz * s, math.cos(0.5 * angle)
+        else:
+            dx, dy, dz, dw = 0.5 * wx, 0.5 * wy, 0.5 * wz, 1.0
+        x, y, z, w = self._q
+        # Σ R·dt with R before the step (bias → attitude-error coupling), row-major.
+        acc = self._sum_r_dt
+        acc[0] += (1 - 2 * (y * y + z * z)) * dt
+        acc[1] += 2 * (x * y - z * w) * dt
+        acc[2] += 2 * (x * z + y * w) * dt
+        acc[3] += 2 * (x * y + z * w) * dt
+        acc[4] += (1 - 2 * (x * x + z * z)) * dt
+        acc[5] += 2 * (y * z - x * w) * dt
+        acc[6] += 2 * (x * z - y * w) * dt
+        acc[7] += 2 * (y * z + x * w) * dt
+        acc[8] += (1 - 2 * (x * x + y * y)) * dt
+        self._pending_dt += dt
+        qx = w * dx + x * dw + y * dz - z * dy
+        qy = w * dy - x * dz + y * dw + z * dx
+        qz = w * dz + x * dy - y * dx + z * dw
+        qw = w * dw - x * dx - y * dy - z * dz
+        n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        self._q = [qx / n, qy / n, qz / n, qw / n]
+
+    def _flush_covariance(self):
+        """P ← F P Fᵀ + Q for the samples since the last flush.
+
+        F = [[I, −Σ R_i dt_i], [0, I]] (map-frame attitude error, body-frame bias); the
+        product of such matrices adds their off-diagonal blocks, so it is exact.
+        """
+        if self._pending_bias_dt <= 0.0:
+            return
+        c = self.config
+        m = -np.array(self._sum_r_dt).reshape(3, 3)
+        a, b, cc = self.P[:3, :3], self.P[:3, 3:], self.P[3:, 3:]
+        mb = m @ b.T
+        a_new = a + mb + mb.T + m @ cc @ m.T
+        a_new += np.eye(3) * (c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
+                              + self._pending_extra_var)
+        b_new = b + m @ cc
+        self.P[:3, :3] = a_new
+        self.P[:3, 3:] = b_new
+        self.P[3:, :3] = b_new.T
+        self.P[3:, 3:] = cc + np.eye(3) * (c.gyro_bias_random_walk_rps2_rthz ** 2
+                                           * self._pending_bias_dt)
+        self._sum_r_dt = [0.0] * 9
+        self._pending_dt = 0.0
+        self._pending_bias_dt = 0.0
+        self._pending_extra_var = 0.0
+
+    # ------------------------------------------------------------------ updates
+    def _accumulate_pull(self, dt, sway2):
+        c = self.config
+        roll, pitch, yaw = _rpy_of(*self._q)
+        ref_yaw = c.track_heading_rad + c.heading_offset_rad
+        corr = self._corr
+        entry = (dt, _wrap(c.track_roll_rad - roll) + corr[0],
+                 _wrap(c.track_pitch_rad - pitch) + corr[1], _wrap(ref_yaw - yaw) + corr[2],
+                 sway2)
+        ring, s = self._pull_ring, self._pull_sum
+        ring.append(entry)
+        s[0] += entry[1]
+        s[1] += entry[2]
+        s[2] += entry[3]
+        s[3] += sway2
+        self._pull_time += dt
+        while self._pull_time - ring[0][0] >= c.pull_window_s:
+            old = ring.popleft()
+            self._pull_time -= old[0]
+            s[0] -= old[1]
+            s[1] -= old[2]
+            s[2] -= old[3]
+            s[3] -= old[4]
+            self._pull_full = True
+
+    def _at_speed(self):
+        """Sway gate of the pulls (see ``pull_min_sway_ratio``), updating the reference."""
+        c = self.config
+        sway2 = self._pull_sum[3] / len(self._pull_ring)
+        self._sway_ref2 = max(sway2, self._sway_ref2
+                              * math.exp(-2.0 * self._since_pull / SWAY_MEMORY_S))
+        ring = self._pull_ring
+        k = max(1, int(len(ring) * SWAY_GATE_FRACTION))
+        recent2 = sum(ring[-i][4] for i in range(1, k + 1)) / k
+        return recent2 >= max(c.pull_min_sway_rps ** 2,
+                              c.pull_min_sway_ratio ** 2 * self._sway_ref2)
+
+    def _apply_pull(self, period_s):
+        """Pull roll, pitch and heading toward the track (time constants τ)."""
+        c = self.config
+        n = len(self._pull_ring)
+        corr = self._corr
+        # Mean innovation over the window, shifted by the corrections made since.
+        mean = [self._pull_sum[k] / n - corr[k] for k in range(3)]
+        roll, pitch, yaw = _rpy_of(*self._q)
+        sy, cy = math.sin(yaw), math.cos(yaw)
+        sp, cp = math.sin(pitch), math.cos(pitch)
+        rows = []  # (map-frame axis, innovation, τ)
+        if c.tilt_time_constant_s > 0.0:
+            # Map-frame axes of a roll and a pitch increment of R = Rz·Ry·Rx: Rz·Ry·x̂
+            # and Rz·ŷ (exact for this parametrisation).
+            rows.append(([cy * cp, sy * cp, -sp], mean[0], c.tilt_time_constant_s))
+            rows.append(([-sy, cy, 0.0], mean[1], c.tilt_time_constant_s))
+        if c.heading_time_constant_s > 0.0:
+            rows.append(([0.0, 0.0, 1.0], mean[2], c.heading_time_constant_s))
+        if not rows:
+            return
+        h = np.zeros((len(rows), 6))
+        h[:, :3] = [r[0] for r in rows]
+        tau = np.array([r[2] for r in rows])
+        var = c.gyro_noise_density_rps_rthz ** 2 * tau ** 2 / period_s
+        self._update(h, np.array([r[1] for r in rows]), var)
+
+    def _apply_zero_rate(self, sample_rate_hz):
+        """Zero-angular-rate update: standing, the mean gyro reading is its bias."""
+        c = self.config
+        n = self._zaru_n
+        std = c.zero_rate_std_rps if c.zero_rate_std_rps > 0.0 else \
+            c.gyro_noise_density_rps_rthz * math.sqrt(sample_rate_hz)
+        mean = np.array(self._zaru_sum) / n
+        self._zaru_sum = [0.0, 0.0, 0.0]
+        self._zaru_n = 0
+        h = np.zeros((3, 6))
+        h[:, 3:] = np.eye(3)
+        self._update(h, mean - self.gyro_bias_rps, np.full(3, std ** 2 / n))
+
+    def _apply_gravity(self):
+        """Optional tilt update from the mean specific force of the update period.
+
+        Moving, only the component about the track direction (roll) is used, since
+        traction and braking tilt the apparent gravity about the cross-track axis.
+        """
+        c = self.config
+        f = np.array(self._grav_sum) / self._grav_n
+        duration, moving = self._grav_time, self._grav_moving
+        self._grav_sum = [0.0, 0.0, 0.0]
+        self._grav_n = 0
+        self._grav_time = 0.0
+        self._grav_moving = False
+        norm = float(np.linalg.norm(f))
+        if not abs(norm - c.gravity_mps2) <= c.gravity_gate_mps2:
+            return
+        # u = R_est·f̂ is ẑ when the estimate is right; for R_true = Exp(δθ)·R_est,
+        # u × ẑ = (δθx, δθy, 0) to first order.
+        u = quat_to_matrix(np.array(self._q)) @ (f / norm)
+        resid = np.cross(u, [0.0, 0.0, 1.0])
+        along = np.array([math.cos(c.track_heading_rad), math.sin(c.track_heading_rad), 0.0])
+        axes = [along] if moving else [along, np.array([-along[1], along[0], 0.0])]
+        h = np.zeros((len(axes), 6))
+        h[:, :3] = axes
+        var = c.gyro_noise_density_rps_rthz ** 2 * c.gravity_time_constant_s ** 2 / duration
+        self._update(h, np.array([a @ resid for a in axes]), np.full(len(axes), var))
+
+    def update_heading(self, yaw_innovation_rad, variance_rad2):
+        """External heading aiding: ``yaw_innovation_rad = yaw_measured − yaw_estimated``.
+
+        The caller forms the innovation against the estimate at the measurement's own
+        time (see :class:`~imu_compensator.core.compensator.AttitudeCompensator`), so a
+        delayed measurement corrects the current state without re-filtering.
+        """
+        self._flush_covariance()
+        h = np.zeros((1, 6))
+        h[0, 2] = 1.0
+        self._update(h, np.array([_wrap(float(yaw_innovation_rad))]), np.array([variance_rad2]))
+
+    def _update(self, h, innovation, variance):
+        """Kalman update with H (m, 6), innovation (m,), diagonal R (m,); Joseph form."""
+        ph = self.P @ h.T
+        s = h @ ph + np.diag(variance)
+        gain = np.linalg.solve(s, ph.T).T
+        dx = gain @ innovation
+        before = _rpy_of(*self._q)
+        q = quat_multiply(quat_from_rotvec(dx[:3]), np.array(self._q))
+        self._q = [float(v) for v in q / np.linalg.norm(q)]
+        after = _rpy_of(*self._q)
+        for k in range(3):
+            self._corr[k] += _wrap(after[k] - before[k])
+        self.gyro_bias_rps = self.gyro_bias_rps + dx[3:]
+        self._bias = self.gyro_bias_rps.tolist()
+        ikh = np.eye(6) - gain @ h
+        p = ikh @ self.P @ ikh.T + (gain * variance) @ gain.T
+        self.P = 0.5 * (p + p.T)
+
+    # ------------------------------------------------------------------ outputs
+    @property
+    def quat(self):
+        """Attitude (4,) x, y, z, w of ``base_link`` in ``map``, w ≥ 0."""
+        q = np.array(self._q)
+        return -q if q[3] < 0.0 else q
+
+    @property
+    def rpy_rad(self):
+        """Roll, pitch, yaw (3,) of ``base_link`` in ``map``, rad (R = Rz·Ry·Rx)."""
+        return np.array(_rpy_of(*self._q))
+
+    @property
+    def attitude_covariance(self):
+        """Covariance (3, 3) of the small attitude error about map x, y, z, rad².
+
+        The covariance is propagated once per update period; the gyro noise of the
+        samples since then is added here (the bias coupling over < 0.1 s is negligible).
+        """
+        pending = (self.config.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
+                   + self._pending_extra_var)
+        cov = self.P[:3, :3].copy()
+        cov.flat[::4] += pending
+        return cov
+
+    @property
+    def gyro_bias_std_rps(self):
+        """1σ of the gyro bias estimate per axis (3,), rad/s."""
+        return np.sqrt(np.diag(self.P[3:, 3:]))

@@ -1,0 +1,395 @@
+"""imu_compensator_node: camera-platform attitude from the IMU (paper §3.3.2).
+
+Subscriptions
+-------------
+``imu/data_raw`` (sensor_msgs/Imu, ``qos_profile_sensor_data``)
+    Angular rate (rad/s) and specific force (m/s², +9.81 on z at rest) in
+    ``imu_frame_id``, ENU; orientation ignored.
+``heading_aiding`` (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10)
+    Optional external heading (e.g. from vision): the yaw of the orientation, its
+    variance from covariance[35] (``heading_aiding_std_rad`` when absent), fused at the
+    message's stamp.
+
+Publications
+------------
+``imu/data`` (sensor_msgs/Imu, ``qos_profile_sensor_data``)
+    Every ``publish_decimation``-th accepted sample, stamped with the raw sample's stamp,
+    ``frame_id = base_frame_id``: orientation of base_link in map (ENU, x, y, z, w) and
+    its covariance (small-angle errors about map x, y, z ≈ roll, pitch, heading, rad²,
+    row-major); bias-corrected angular rate and raw specific force rotated into
+    base_link, with covariances. Consumers interpolate with
+    :class:`imu_compensator.core.attitude_buffer.AttitudeBuffer`.
+``diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10)
+    Every ``diagnostics_period_s`` (wall clock): gyro bias and its 1σ, zero-velocity
+    state, measured sample rate, accepted / dropped / gap / reset counts, attitude.
+
+Bad input (non-finite values, duplicate or out-of-order stamps, a time jump backwards,
+gaps) is counted, warned about (throttled) and skipped or handled as described in
+:mod:`imu_compensator.core.compensator`; it never stops the node. Parameters:
+``config/imu_compensator_node.yaml``.
+"""
+from dataclasses import dataclass
+import math
+import sys
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Imu
+
+from imu_compensator.conversions import fill_imu_data, imu_sample, pose_heading
+from imu_compensator.core.attitude_filter import AttitudeFilterConfig
+from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorConfig,
+                                              SampleStatus)
+from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
+from imu_compensator.core.zero_velocity import ZeroVelocityConfig
+
+DEG = math.pi / 180.0
+#: Exit code of an invalid configuration (as the rig's nodes).
+EXIT_INVALID_CONFIG = 2
+
+_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
+_STRING = ParameterType.PARAMETER_STRING
+
+
+def _desc(text, lo=None, hi=None, ptype=None, integer=False):
+    d = ParameterDescriptor(description=text)
+    if ptype is not None:
+        d.type = ptype
+    if lo is not None and integer:
+        d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+    elif lo is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
+                                                     step=0.0)]
+    return d
+
+
+_F = AttitudeFilterConfig()
+_Z = ZeroVelocityConfig()
+_C = CompensatorConfig()
+
+#: (name, default, descriptor); documented key by key in config/imu_compensator_node.yaml.
+NODE_PARAMETERS = (
+    ('imu_frame_id', 'imu_link', _desc('Expected frame_id of imu/data_raw (a different one '
+                                       'is warned about once).', ptype=_STRING)),
+    ('base_frame_id', 'base_link', _desc('frame_id of imu/data: the platform whose attitude '
+                                         'is estimated.', ptype=_STRING)),
+    ('imu_mount_rpy_rad', [0.0, 0.0, 0.0], _desc('Rotation of imu_link in base_link [roll, '
+                                                 'pitch, yaw], rad.', ptype=_ARRAY)),
+    ('nominal_rate_hz', _C.nominal_rate_hz, _desc('Expected IMU rate, Hz.', 1.0, 5000.0)),
+    ('publish_decimation', 1, _desc('Publish imu/data for every N-th accepted sample.',
+                                    1, 1000, integer=True)),
+    ('gyro_noise_density_rps_rthz', _F.gyro_noise_density_rps_rthz,
+     _desc('Gyro white-noise density (ARW), rad/s/sqrt(Hz).', 1e-7, 1e-1)),
+    ('gyro_bias_random_walk_rps2_rthz', _F.gyro_bias_random_walk_rps2_rthz,
+     _desc('Gyro bias random-walk density assumed by the filter, rad/s^2/sqrt(Hz).',
+           0.0, 1e-2)),
+    ('initial_gyro_bias_std_rps', _F.initial_gyro_bias_std_rps,
+     _desc('1 sigma of the gyro bias at a cold start, rad/s.', 1e-7, 1.0)),
+    ('initial_attitude_std_rad', list(_F.initial_attitude_std_rad),
+     _desc('1 sigma [roll, pitch, heading] at a cold start, rad.', ptype=_ARRAY)),
+    ('aligned_attitude_std_rad', list(_F.aligned_attitude_std_rad),
+     _desc('1 sigma [roll, pitch, heading] after a static alignment, rad.', ptype=_ARRAY)),
+    ('tilt_time_constant_s', _F.tilt_time_constant_s,
+     _desc('Time constant of the roll/pitch pull toward the track attitude, s; 0 = off.',
+           0.0, 1e5)),
+    ('heading_time_constant_s', _F.heading_time_constant_s,
+     _desc('Time constant of the heading pull toward the track heading, s; 0 = off.',
+           0.0, 1e5)),
+    ('pull_window_s', _F.pull_window_s,
+     _desc('Sliding window over which the pull innovations are averaged, s.', 0.01, 1e3)),
+    ('pull_hold_s', _F.pull_hold_s,
+     _desc('Moving time after departure before the pulls start, s.', 0.0, 1e3)),
+    ('pull_min_sway_ratio', _F.pull_min_sway_ratio,
+     _desc('Pulls act only while the sway RMS over the pull window is at least this '
+           'fraction of the running sway level.', 0.0, 1.0)),
+    ('pull_min_sway_rps', _F.pull_min_sway_rps,
+     _desc('Absolute floor of the sway gate, rad/s.', 0.0, 10.0)),
+    ('track_roll_rad', _F.track_roll_rad, _desc('Track cant (roll) in map, rad.', -0.5, 0.5)),
+    ('track_pitch_rad', _F.track_pitch_rad,
+     _desc('Track grade as pitch in map (nose down positive), rad.', -0.5, 0.5)),
+    ('track_heading_rad', _F.track_heading_rad,
+     _desc('Track direction (yaw) in map, rad.', -math.pi, math.pi)),
+    ('heading_offset_rad', _F.heading_offset_rad,
+     _desc('Known slow mean of the platform heading relative to the track at speed, rad.',
+           -0.5, 0.5)),
+    ('gravity_time_constant_s', _F.gravity_time_constant_s,
+     _desc('Time constant of the optional gravity tilt reference, s; 0 = off.', 0.0, 1e5)),
+    ('gravity_gate_mps2', _F.gravity_gate_mps2,
+     _desc('Gravity updates skipped when | |f| - g | exceeds this, m/s^2.', 1e-3, 100.0)),
+    ('update_period_s', _F.update_period_s,
+     _desc('Period of the covariance propagation and of the updates, s.', 1e-3, 10.0)),
+    ('zero_velocity_window_s', _Z.window_s,
+     _desc('Window of the zero-velocity (standstill) test, s.', 0.01, 60.0)),
+    ('zero_velocity_gyro_std_rps', _Z.gyro_std_threshold_rps,
+     _desc('Standstill: every gyro axis std over the window below this, rad/s.', 1e-6, 1.0)),
+    ('zero_velocity_accel_std_mps2', _Z.accel_std_threshold_mps2,
+     _desc('Standstill: every accelerometer axis std over the window below this, m/s^2.',
+           1e-5, 10.0)),
+    ('zero_velocity_max_rate_rps', _Z.max_rate_rps,
+     _desc('Standstill (once the bias is known): window mean rate within this of the bias '
+           'on every axis, rad/s.', 1e-6, 1.0)),
+    ('gap_s', _C.gap_s, _desc('A step longer than this is a gap (warned, propagated), s.',
+                              1e-4, 60.0)),
+    ('backward_reset_s', _C.backward_reset_s,
+     _desc('A stamp this much older than the newest resets the filter; less is dropped as '
+           'out of order, s.', 1e-4, 1e6)),
+    ('history_s', _C.history_s, _desc('Attitude history kept for delayed heading aiding, s.',
+                                      0.1, 60.0)),
+    ('orientation_std_floor_rad', [0.05 * DEG, 0.05 * DEG, 0.1 * DEG],
+     _desc('1 sigma [roll, pitch, heading] added in quadrature to the published orientation '
+           'covariance (errors the filter does not model), rad.', ptype=_ARRAY)),
+    ('heading_aiding_std_rad', 1.0 * DEG,
+     _desc('1 sigma of a heading_aiding message without covariance, rad.', 1e-6, 1.0)),
+    ('diagnostics_period_s', 1.0, _desc('Wall-clock period of diagnostics, s.', 0.05, 60.0)),
+    ('warn_throttle_s', 1.0, _desc('Minimum wall-clock interval between repeated warnings '
+                                   'of one kind, s.', 0.0, 3600.0)),
+)
+
+
+@dataclass
+class NodeConfig:
+    """Every parameter of the node, read once at start-up."""
+
+    imu_frame_id: str
+    base_frame_id: str
+    publish_decimation: int
+    orientation_std_floor_rad: tuple
+    heading_aiding_std_rad: float
+    diagnostics_period_s: float
+    warn_throttle_s: float
+    compensator: CompensatorConfig
+
+
+def _triple(name, values, non_negative=False):
+    out = tuple(float(v) for v in values)
+    if len(out) != 3 or not all(math.isfinite(v) for v in out) \
+            or (non_negative and min(out) < 0.0):
+        raise ValueError(f'{name} must be 3 finite{" non-negative" if non_negative else ""} '
+                         f'numbers, got {list(values)}')
+    return out
+
+
+def read_config(node):
+    """Declare and read every parameter.
+
+    Raises
+    ------
+    rclpy.exceptions.ParameterException
+        A value has the wrong type or is outside its declared range.
+    ValueError
+        A value is inconsistent (wrong array length, empty frame id, ...).
+    """
+    for name, default, descriptor in NODE_PARAMETERS:
+        node.declare_parameter(name, default, descriptor)
+    v = {name: node.get_parameter(name).value for name, _, _ in NODE_PARAMETERS}
+    for name in ('imu_frame_id', 'base_frame_id'):
+        if not v[name]:
+            raise ValueError(f'{name} must not be empty')
+    filt = AttitudeFilterConfig(
+        gyro_noise_density_rps_rthz=v['gyro_noise_density_rps_rthz'],
+        gyro_bias_random_walk_rps2_rthz=v['gyro_bias_random_walk_rps2_rthz'],
+        initial_gyro_bias_std_rps=v['initial_gyro_bias_std_rps'],
+        initial_attitude_std_rad=_triple('initial_attitude_std_rad',
+                                         v['initial_attitude_std_rad']),
+        aligned_attitude_std_rad=_triple('aligned_attitude_std_rad',
+                                         v['aligned_attitude_std_rad']),
+        tilt_time_constant_s=v['tilt_time_constant_s'],
+        heading_time_constant_s=v['heading_time_constant_s'],
+        pull_window_s=v['pull_window_s'], pull_hold_s=v['pull_hold_s'],
+        pull_min_sway_ratio=v['pull_min_sway_ratio'], pull_min_sway_rps=v['pull_min_sway_rps'],
+        track_roll_rad=v['track_roll_rad'], track_pitch_rad=v['track_pitch_rad'],
+        track_heading_rad=v['track_heading_rad'], heading_offset_rad=v['heading_offset_rad'],
+        gravity_time_constant_s=v['gravity_time_constant_s'],
+        gravity_gate_mps2=v['gravity_gate_mps2'], update_period_s=v['update_period_s'])
+    zv = ZeroVelocityConfig(window_s=v['zero_velocity_window_s'],
+                            gyro_std_threshold_rps=v['zero_velocity_gyro_std_rps'],
+                            accel_std_threshold_mps2=v['zero_velocity_accel_std_mps2'],
+                            max_rate_rps=v['zero_velocity_max_rate_rps'])
+    comp = CompensatorConfig(filter=filt, zero_velocity=zv,
+                             nominal_rate_hz=v['nominal_rate_hz'], gap_s=v['gap_s'],
+                             backward_reset_s=v['backward_reset_s'],
+                             imu_mount_rpy_rad=_triple('imu_mount_rpy_rad',
+                                                       v['imu_mount_rpy_rad']),
+                             history_s=v['history_s'])
+    return NodeConfig(
+        imu_frame_id=v['imu_frame_id'], base_frame_id=v['base_frame_id'],
+        publish_decimation=v['publish_decimation'],
+        orientation_std_floor_rad=_triple('orientation_std_floor_rad',
+                                          v['orientation_std_floor_rad'], non_negative=True),
+        heading_aiding_std_rad=v['heading_aiding_std_rad'],
+        diagnostics_period_s=v['diagnostics_period_s'],
+        warn_throttle_s=v['warn_throttle_s'], compensator=comp)
+
+
+class ImuCompensatorNode(Node):
+    """Raw IMU in, attitude out; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('imu_compensator_node', **kwargs)
+        self.config = cfg = read_config(self)
+        self.compensator = AttitudeCompensator(cfg.compensator)
+        fc = cfg.compensator.filter
+        self._floor_var = np.square(cfg.orientation_std_floor_rad)
+        self._gyro_white_var = (fc.gyro_noise_density_rps_rthz ** 2
+                                * cfg.compensator.nominal_rate_hz)
+        mount = cfg.compensator.imu_mount_rpy_rad
+        self._r_base_imu = quat_to_matrix(quat_from_rpy(*mount)) if any(mount) else None
+        self._out = Imu()
+        self._out.header.frame_id = cfg.base_frame_id
+        self._accepted_since_publish = 0
+        self._frame_warned = False
+        self._last_stamp = None
+        self._diag_count = 0
+        self._diag_t0 = None
+        self._diag_stats = None
+
+        self._pub = self.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
+        self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, qos_profile_sensor_data)
+        self.create_subscription(PoseWithCovarianceStamped, 'heading_aiding',
+                                 self._on_heading_aiding, 10)
+        self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics)
+        self.get_logger().info(
+            f'attitude of {cfg.base_frame_id} from {self.resolve_topic_name("imu/data_raw")} at '
+            f'{cfg.compensator.nominal_rate_hz:g} Hz nominal; heading tau '
+            f'{fc.heading_time_constant_s:g} s, tilt tau {fc.tilt_time_constant_s:g} s, '
+            f'track heading {fc.track_heading_rad / DEG:.3f} deg + offset '
+            f'{fc.heading_offset_rad / DEG:.3f} deg at speed')
+
+    # ------------------------------------------------------------------ callbacks
+    def _on_imu(self, msg):
+        cfg = self.config
+        if not self._frame_warned and msg.header.frame_id != cfg.imu_frame_id:
+            self._frame_warned = True
+            self.get_logger().warn(f'imu/data_raw frame_id {msg.header.frame_id!r}, expected '
+                                   f'{cfg.imu_frame_id!r}: treating it as {cfg.imu_frame_id}')
+        t_s, gyro, accel = imu_sample(msg)
+        result = self.compensator.process(t_s, gyro, accel)
+        status = result.status
+        if not status.accepted:
+            self._warn_skipped(result)
+            return
+        if status is SampleStatus.GAP:
+            self.get_logger().warn(f'IMU gap of {result.dt_s * 1e3:.1f} ms before t = {t_s:.6f} '
+                                   's: attitude propagated across it',
+                                   throttle_duration_sec=cfg.warn_throttle_s)
+        elif status is SampleStatus.RESET:
+            self.get_logger().warn(f'IMU time jumped back by {-result.dt_s:.3f} s to '
+                                   f't = {t_s:.6f} s: attitude filter reset',
+                                   throttle_duration_sec=cfg.warn_throttle_s)
+        self._last_stamp = msg.header.stamp
+        self._diag_count += 1
+        self._accepted_since_publish += 1
+        if self._accepted_since_publish < cfg.publish_decimation \
+                and status is SampleStatus.OK:
+            return
+        self._accepted_since_publish = 0
+        comp = self.compensator
+        fill_imu_data(self._out, msg.header, result, self._floor_var, self._gyro_white_var,
+                      np.square(comp.gyro_bias_std_rps), msg.angular_velocity_covariance,
+                      msg.linear_acceleration_covariance, self._r_base_imu)
+        self._pub.publish(self._out)
+
+    def _warn_skipped(self, result):
+        log, throttle = self.get_logger(), self.config.warn_throttle_s
+        status = result.status
+        if status is SampleStatus.NONFINITE:
+            log.warn('non-finite IMU sample skipped', throttle_duration_sec=throttle)
+        elif status is SampleStatus.DUPLICATE:
+            log.warn(f'duplicate IMU stamp t = {result.t_s:.6f} s skipped',
+                     throttle_duration_sec=throttle)
+        else:
+            log.warn(f'out-of-order IMU sample ({result.dt_s * 1e3:.1f} ms before the newest) '
+                     'skipped', throttle_duration_sec=throttle)
+
+    def _on_heading_aiding(self, msg):
+        t_s, yaw, var = pose_heading(msg)
+        if not math.isfinite(var):
+            var = self.config.heading_aiding_std_rad ** 2
+        if not self.compensator.heading_aiding(t_s, yaw, var):
+            self.get_logger().warn(f'heading aiding at t = {t_s:.6f} s rejected (outside the '
+                                   'attitude history or not finite)',
+                                   throttle_duration_sec=self.config.warn_throttle_s)
+
+    # ------------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self):
+        comp = self.compensator
+        stats = comp.stats
+        status = DiagnosticStatus(name=f'{self.get_name()}: attitude',
+                                  hardware_id=self.config.imu_frame_id)
+        now_t = comp.last_t_s
+        rate = float('nan')
+        if self._diag_t0 is not None and now_t is not None and now_t > self._diag_t0:
+            rate = self._diag_count / (now_t - self._diag_t0)
+        prev = self._diag_stats
+        new_problems = prev is not None and (stats.dropped > prev[0] or stats.gaps > prev[1]
+                                              or stats.resets > prev[2])
+        if now_t is None:
+            status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample yet'
+        elif self._diag_count == 0:
+            status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample this period'
+        elif new_problems:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'bad IMU input this period (dropped, gap or reset)'
+        else:
+            status.level, status.message = DiagnosticStatus.OK, 'tracking'
+        bias = comp.gyro_bias_rps
+        bias_std = comp.gyro_bias_std_rps
+        rpy = comp.filter.rpy_rad
+        values = {
+            'gyro_bias_deg_h': ' '.join(f'{b / DEG * 3600.0:.2f}' for b in bias),
+            'gyro_bias_std_deg_h': ' '.join(f'{b / DEG * 3600.0:.2f}' for b in bias_std),
+            'zero_velocity': str(comp.stationary).lower(),
+            'stationary_samples': str(stats.stationary_samples),
+            'sample_rate_hz': f'{rate:.1f}',
+            'samples_accepted': str(stats.accepted),
+            'samples_dropped': str(stats.dropped),
+            'dropped_nonfinite': str(stats.nonfinite),
+            'dropped_duplicate': str(stats.duplicate),
+            'dropped_out_of_order': str(stats.out_of_order),
+            'gaps': str(stats.gaps),
+            'resets': str(stats.resets),
+            'heading_aiding_used': str(stats.aiding_used),
+            'heading_aiding_rejected': str(stats.aiding_rejected),
+            'rpy_deg': ' '.join(f'{a / DEG:.3f}' for a in rpy),
+            'heading_std_deg': f'{math.sqrt(comp.filter.attitude_covariance[2, 2]) / DEG:.4f}',
+        }
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        # Stamped with the newest sample's time, like everything else this node publishes.
+        if self._last_stamp is not None:
+            msg.header.stamp = self._last_stamp
+        self._diag_pub.publish(msg)
+        self._diag_t0 = now_t
+        self._diag_count = 0
+        self._diag_stats = (stats.dropped, stats.gaps, stats.resets)
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = ImuCompensatorNode()
+    except (ParameterException, ValueError) as exc:
+        rclpy.logging.get_logger('imu_compensator_node').fatal(f'invalid parameter: {exc}')
+        rclpy.try_shutdown()
+        return EXIT_INVALID_CONFIG
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

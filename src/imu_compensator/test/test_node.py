@@ -1,0 +1,160 @@
+"""imu_compensator_node in-process: outputs, stamps, bad input, diagnostics, parameters.
+
+Every test runs the node and a probe node in their own rclpy Context on an isolated DDS
+domain (``ros_env``).
+"""
+import math
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.context import Context
+from rclpy.exceptions import ParameterException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Imu
+
+from imu_compensator.imu_compensator_node import ImuCompensatorNode
+
+pytestmark = pytest.mark.ros
+
+EPOCH_NS = 1704067200 * 10 ** 9
+PERIOD_NS = 2_500_000
+
+
+def raw(stamp_ns, gyro=(0.0, 0.0, 0.0), accel=(0.0, 0.0, 9.80665), frame='imu_link'):
+    msg = Imu()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)
+    msg.header.frame_id = frame
+    msg.orientation_covariance[0] = -1.0
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = gyro
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = accel
+    for i in (0, 4, 8):
+        msg.angular_velocity_covariance[i] = 2.3e-6
+        msg.linear_acceleration_covariance[i] = 9.3e-5
+    return msg
+
+
+@pytest.fixture
+def ctx(ros_env):
+    context = Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.shutdown(context=context)
+
+
+class Harness:
+    def __init__(self, ctx, **params):
+        overrides = [Parameter('diagnostics_period_s', value=0.1)] + [
+            Parameter(k, value=v) for k, v in params.items()]
+        self.node = ImuCompensatorNode(context=ctx, parameter_overrides=overrides)
+        self.probe = Node('probe', context=ctx)
+        self.pub = self.probe.create_publisher(Imu, 'imu/data_raw', qos_profile_sensor_data)
+        self.out, self.diags = [], []
+        self.probe.create_subscription(Imu, 'imu/data', self.out.append,
+                                       qos_profile_sensor_data)
+        self.probe.create_subscription(DiagnosticArray, 'diagnostics', self.diags.append, 50)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.probe)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and (
+                self.pub.get_subscription_count() == 0
+                or self.node.count_subscribers('imu/data') == 0):
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def send(self, msgs):
+        """Publish one by one, spinning in between (best-effort QoS: do not flood)."""
+        for msg in msgs:
+            self.pub.publish(msg)
+            for _ in range(3):
+                self.executor.spin_once(timeout_sec=0.002)
+
+    def spin_until(self, predicate, timeout=5.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not predicate():
+            self.executor.spin_once(timeout_sec=0.02)
+        return predicate()
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.probe.destroy_node()
+
+
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec
+
+
+def test_output_is_stamped_with_the_sample_time_and_bad_input_is_skipped(ctx):
+    h = Harness(ctx)
+    try:
+        good = [raw(EPOCH_NS + k * PERIOD_NS, gyro=(0.002, -0.001, 0.0005)) for k in range(20)]
+        last = EPOCH_NS + 19 * PERIOD_NS
+        bad = [raw(last + PERIOD_NS, gyro=(math.nan, 0.0, 0.0)),       # non-finite
+               raw(last + PERIOD_NS, accel=(0.0, math.inf, 9.8)),      # non-finite
+               raw(last),                                              # duplicate
+               raw(last - 10 * PERIOD_NS)]                             # out of order
+        after = [raw(last + PERIOD_NS),
+                 raw(last - 5 * 10 ** 9),                              # back 5 s: reset
+                 raw(last - 5 * 10 ** 9 + PERIOD_NS),
+                 raw(last - 5 * 10 ** 9 + PERIOD_NS + 300_000_000),   # 0.3 s gap
+                 raw(last - 5 * 10 ** 9 + 2 * PERIOD_NS + 300_000_000)]
+        h.send(good + bad + after)
+        expected = [stamp_ns(m) for m in good + after]
+        assert h.spin_until(lambda: len(h.out) >= len(expected))
+        assert [stamp_ns(m) for m in h.out] == expected
+        for msg in h.out:
+            q = np.array([msg.orientation.x, msg.orientation.y, msg.orientation.z,
+                          msg.orientation.w])
+            assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-9)
+            assert msg.header.frame_id == 'base_link'
+            cov = np.array(msg.orientation_covariance).reshape(3, 3)
+            assert np.all(np.diag(cov) > 0.0) and np.allclose(cov, cov.T)
+            assert msg.angular_velocity_covariance[0] > 2.3e-6
+            assert msg.linear_acceleration_covariance[0] == pytest.approx(9.3e-5)
+        s = h.node.compensator.stats
+        assert (s.nonfinite, s.duplicate, s.out_of_order, s.resets, s.gaps) == (2, 1, 1, 1, 1)
+        assert h.spin_until(lambda: any(
+            {kv.key: kv.value for kv in d.status[0].values}.get('resets') == '1'
+            for d in h.diags))
+        values = {kv.key: kv.value for kv in h.diags[-1].status[0].values}
+        for key in ('gyro_bias_deg_h', 'gyro_bias_std_deg_h', 'zero_velocity', 'sample_rate_hz',
+                    'samples_dropped', 'gaps', 'resets'):
+            assert key in values
+        assert values['samples_dropped'] == '4'
+    finally:
+        h.close()
+
+
+def test_decimation_and_mount_rotation(ctx):
+    # IMU mounted rolled by 90°: its y axis is base_link's z, so gravity on y in imu_link
+    # must come out on z in base_link.
+    h = Harness(ctx, publish_decimation=4, imu_mount_rpy_rad=[math.pi / 2, 0.0, 0.0])
+    try:
+        h.send([raw(EPOCH_NS + k * PERIOD_NS, accel=(0.0, 9.80665, 0.0)) for k in range(41)])
+        # Sample 0 (start) and every 4th accepted sample after it.
+        assert h.spin_until(lambda: len(h.out) >= 11)
+        assert [(stamp_ns(m) - EPOCH_NS) // PERIOD_NS for m in h.out] == \
+            [0] + list(range(4, 41, 4))
+        la = h.out[-1].linear_acceleration
+        assert (la.x, la.y, la.z) == pytest.approx((0.0, 0.0, 9.80665), abs=1e-9)
+    finally:
+        h.close()
+
+
+def test_invalid_parameters_are_refused(ctx):
+    with pytest.raises(ParameterException):
+        ImuCompensatorNode(context=ctx, parameter_overrides=[
+            Parameter('heading_time_constant_s', value=-1.0)])
+    with pytest.raises(ValueError):
+        ImuCompensatorNode(context=ctx, parameter_overrides=[
+            Parameter('imu_mount_rpy_rad', value=[0.0, 0.0])])
+    with pytest.raises(ValueError):
+        # A pull time constant shorter than its averaging window.
+        ImuCompensatorNode(context=ctx, parameter_overrides=[
+            Parameter('heading_time_constant_s', value=1.0)])

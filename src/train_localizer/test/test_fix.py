@@ -1,0 +1,138 @@
+"""Triangulation and fix geometry against the rig's own projection (the truth)."""
+import math
+
+import numpy as np
+import pytest
+
+from vlc_stereo_camera.core.camera import StereoRig
+from vlc_stereo_camera.core.geometry import rpy_to_matrix
+from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+
+from train_localizer.core.fix import (FixConfig, RigGeometry, constrained_fix,
+                                      measurement_time_ns, paper_fix, triangulate)
+from train_localizer.core.observation import LampObservation
+
+DEG = math.pi / 180.0
+RIG = StereoRig()
+GEOM = RigGeometry.from_stereo_rig(RIG)
+LAMP = straight_tunnel_map().by_uid(4096 + 10)   # at chainage 100 m
+
+
+def observe(base, R, lamp=LAMP, noise=None, sigma=0.05):
+    uv_l, uv_r, _ = RIG.project(lamp.position_m[None, :], base, R)
+    n = np.zeros(4) if noise is None else noise
+    return LampObservation(stamp_ns=0, uid=lamp.uid, uv_left=uv_l[0] + n[:2],
+                           uv_right=uv_r[0] + n[2:], sigma_u_px=sigma, sigma_v_px=sigma)
+
+
+def visible_offsets():
+    """Along-track camera-to-lamp offsets (m) at which the default rig sees the lamp."""
+    return [1.5, 3.0, 5.0, 7.0, 8.5]
+
+
+@pytest.mark.parametrize('dx', visible_offsets())
+def test_triangulation_matches_rig_truth(dx):
+    R = rpy_to_matrix(0.004, -0.003, 0.09)        # vibration-sized attitude, 5° heading
+    base = np.array([LAMP.position_m[0] - dx, 0.003, -0.002])
+    p_cam, cov = triangulate(observe(base, R), GEOM)
+    truth = RIG.to_camera(LAMP.position_m[None, :], base, R, 0)[0]
+    np.testing.assert_allclose(p_cam, truth, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0)
+
+
+def test_triangulation_covariance_matches_monte_carlo_and_depth_formula():
+    R = np.eye(3)
+    base = np.array([LAMP.position_m[0] - 7.0, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    sigma = 0.05
+    samples = np.array([triangulate(observe(base, R, noise=rng.normal(0, sigma, 4)), GEOM)[0]
+                        for _ in range(4000)])
+    _, cov = triangulate(observe(base, R), GEOM)
+    emp = np.cov(samples.T)
+    np.testing.assert_allclose(np.sqrt(np.diag(emp)), np.sqrt(np.diag(cov)), rtol=0.1)
+    # σz = z²·σd/(f·b) with σd = √2·σu (independent left/right centres).
+    z = samples[:, 2].mean()
+    expected = z * z * math.sqrt(2.0) * sigma / (GEOM.fx * GEOM.baseline_m)
+    assert math.sqrt(cov[2, 2]) == pytest.approx(expected, rel=0.02)
+
+
+def test_triangulation_refuses_small_or_negative_disparity():
+    obs = LampObservation(0, None, [700.0, 300.0], [701.0, 300.0])
+    assert triangulate(obs, GEOM, min_disparity_px=4.0) == (None, None)
+
+
+@pytest.mark.parametrize('dx', visible_offsets())
+def test_fixes_recover_the_truth_without_noise(dx):
+    R = rpy_to_matrix(0.003, 0.002, -0.06)
+    base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    p_cam, cov = triangulate(observe(base, R), GEOM)
+    cov_att = np.diag(np.square([0.05, 0.05, 0.1])) * DEG ** 2
+    c = constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, GEOM, FixConfig())
+    p = paper_fix(p_cam, cov, LAMP.position_m, R, cov_att, GEOM, FixConfig())
+    assert c.chainage_m == pytest.approx(base[0], abs=1e-9)
+    np.testing.assert_allclose(p.position_m, base, atol=1e-9)
+    assert c.chi2_geometry < 1e-12
+    assert c.var_m2 == pytest.approx(c.var_random_m2 + c.var_systematic_m2)
+
+
+def test_paper_fix_keeps_the_vibration_offsets():
+    R = rpy_to_matrix(0.002, 0.001, 0.02)
+    base = np.array([LAMP.position_m[0] - 4.0, 0.004, -0.003])
+    p_cam, cov = triangulate(observe(base, R), GEOM)
+    p = paper_fix(p_cam, cov, LAMP.position_m, R, np.eye(3) * 1e-8, GEOM, FixConfig())
+    np.testing.assert_allclose(p.position_m, base, atol=1e-9)
+
+
+def test_stereo_range_makes_the_constrained_fix_attitude_independent():
+    """A 0.5° heading error moves the paper fix by centimetres, the range fix by mm."""
+    R_true = rpy_to_matrix(0.0, 0.0, 0.05)
+    R_est = rpy_to_matrix(0.0, 0.0, 0.05 + 0.5 * DEG)
+    cov_att = np.diag(np.square([0.05, 0.05, 0.5])) * DEG ** 2
+    for dx in (5.0, 7.0, 8.5):
+        base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+        p_cam, cov = triangulate(observe(base, R_true), GEOM)
+        c = constrained_fix(p_cam, cov, LAMP.position_m, R_est, cov_att, GEOM, FixConfig())
+        p = paper_fix(p_cam, cov, LAMP.position_m, R_est, cov_att, GEOM, FixConfig())
+        assert abs(c.chainage_m - base[0]) < 0.006, dx
+        assert abs(p.chainage_m - base[0]) > 0.015, dx
+        # Each error is inside its own 3σ.
+        assert abs(c.chainage_m - base[0]) < 3.0 * c.sigma_m
+        assert abs(p.chainage_m - base[0]) < 3.0 * p.sigma_m
+
+
+@pytest.mark.parametrize('dx', [2.0, 6.0])
+def test_constrained_fix_variance_matches_its_scatter(dx):
+    R = np.eye(3)
+    base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    cfg = FixConfig(track_sigma_yz_m=(1e-9, 1e-9), lamp_position_sigma_m=1e-9)
+    rng = np.random.default_rng(11)
+    cov_att = np.eye(3) * 1e-14
+    est, var = [], []
+    for _ in range(3000):
+        p_cam, cov = triangulate(observe(base, R, noise=rng.normal(0, 0.05, 4)), GEOM)
+        fix = constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, GEOM, cfg)
+        est.append(fix.chainage_m)
+        var.append(fix.var_m2)
+    assert np.std(est) == pytest.approx(math.sqrt(np.mean(var)), rel=0.1)
+    assert abs(np.mean(est) - base[0]) < 3.0 * np.std(est) / math.sqrt(len(est)) + 1e-4
+
+
+def test_geometry_residual_flags_a_wrong_stereo_match():
+    base = np.array([LAMP.position_m[0] - 4.0, 0.0, 0.0])
+    obs = observe(base, np.eye(3))
+    good = constrained_fix(*triangulate(obs, GEOM), LAMP.position_m, np.eye(3),
+                           np.eye(3) * 1e-6, GEOM, FixConfig())
+    obs.uv_right = obs.uv_right + np.array([3.0, 0.0])     # right spot of another blob
+    bad = constrained_fix(*triangulate(obs, GEOM), LAMP.position_m, np.eye(3),
+                          np.eye(3) * 1e-6, GEOM, FixConfig())
+    assert good.chi2_geometry < 1.0
+    assert bad.chi2_geometry > 100.0
+
+
+def test_measurement_time_is_the_spot_rows_exposure_mid_time():
+    obs = LampObservation(1_000_000_000, None, [500.0, 400.0], [480.0, 402.0])
+    # Row 401 (mean of both centres) starts 401·30 µs after row 0, mid-exposure +25 µs.
+    assert measurement_time_ns(obs, GEOM) == 1_000_000_000 + 12_055_000
+    assert measurement_time_ns(obs, GEOM, use_exposure_stamping=False) == 1_000_000_000
+    obs.exposure_mid_offset_s = 0.004
+    assert measurement_time_ns(obs, GEOM) == 1_004_000_000

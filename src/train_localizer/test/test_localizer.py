@@ -1,0 +1,303 @@
+"""The ROS-free localizer on simulated spots and IMU: accuracy, integrity, bad input."""
+import copy
+
+import numpy as np
+import pytest
+
+from vlc_stereo_camera.core.camera import StereoRig
+from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
+
+from train_localizer.core.fix import RigGeometry
+from train_localizer.core.integrity import IntegrityState, Level, select_association
+from train_localizer.core.localizer import Localizer, LocalizerConfig
+from train_localizer.core.observation import ImuSample, LampObservation
+from train_localizer.core.simulation import (EPOCH_NS, SensorErrors, SensorSimulator,
+                                             event_stream, from_stamp_ns)
+
+RIG = StereoRig()
+LAMPS = straight_tunnel_map()
+
+
+def scenario(speed_kmh, t_end, seed=1, start_m=0.0, errors=None):
+    v = speed_kmh / 3.6
+    profile = (MotionProfile('constant', start_chainage_m=start_m, speed_mps=v) if v > 0
+               else MotionProfile('stationary', start_chainage_m=start_m))
+    traj = Trajectory(profile, Vibration(seed=seed))
+    sim = SensorSimulator(traj, RIG, LAMPS, errors or SensorErrors(), np.random.default_rng(seed))
+    return traj, event_stream(sim, 0.0, t_end)
+
+
+def make(**overrides):
+    cfg = LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG))
+    for key, value in overrides.items():
+        setattr(cfg, key, value)
+    return Localizer(LAMPS, cfg)
+
+
+def feed(loc, events, frame_hook=None):
+    poses, fixes, logs = [], [], []
+    for _, kind, payload in events:
+        if kind == 'imu':
+            report = loc.add_imu(payload)
+        else:
+            stamp, observations, truth = payload
+            if frame_hook is not None:
+                observations = frame_hook(stamp, observations, truth)
+            report = loc.add_frame(stamp, observations)
+        poses += report.poses
+        fixes += report.fixes
+        logs += report.events
+    return poses, fixes, logs
+
+
+def errors_of(poses, traj):
+    t = np.array([from_stamp_ns(p.stamp_ns) for p in poses])
+    truth = traj.sample(t).position_m
+    est = np.array([p.position_m for p in poses])
+    sigma = np.sqrt(np.array([np.diag(p.position_cov_m2) for p in poses]))
+    return est - truth, sigma, t
+
+
+@pytest.mark.parametrize('speed_kmh', [40.0, 120.0])
+def test_dynamic_accuracy_and_covariance(speed_kmh):
+    traj, events = scenario(speed_kmh, 60.0 / (speed_kmh / 3.6), seed=2)
+    poses, fixes, _ = feed(make(), events)
+    err, sigma, _ = errors_of(poses, traj)
+    assert np.max(np.linalg.norm(err, axis=1)) < 0.06
+    assert np.mean(np.linalg.norm(err, axis=1)) < 0.012
+    assert np.mean(np.all(np.abs(err) <= 3.0 * sigma, axis=1)) >= 0.997
+    speed = np.array([p.speed_mps for p in poses[10:]])
+    assert np.max(np.abs(speed - speed_kmh / 3.6)) < 0.2
+
+
+def test_publish_grid_is_exact_monotonic_and_only_after_a_confirmed_uid():
+    traj, events = scenario(60.0, 2.0, seed=3)
+    poses, fixes, _ = feed(make(), events)
+    stamps = np.array([p.stamp_ns for p in poses])
+    assert np.all(np.diff(stamps) > 0)
+    grid = [p.stamp_ns for p in poses if p.kind == 'grid']
+    assert all((s - EPOCH_NS) % 20_000_000 == 0 for s in grid)
+    assert len(grid) >= 0.95 * (from_stamp_ns(stamps[-1]) - from_stamp_ns(stamps[0])) * 50
+    first_confirmed = min(f.measurement_ns for f in fixes if f.status == 'initialised')
+    waiting = [f for f in fixes if f.status == 'waiting_for_uid']
+    assert waiting, 'the simulated decoder confirms after 5 frames'
+    # Nothing is published for an instant before the confirming frame.
+    assert first_confirmed <= stamps[0] <= first_confirmed + 60_000_000
+    assert all(f.measurement_ns < first_confirmed for f in waiting)
+
+
+def test_static_with_zero_velocity_updates():
+    traj, events = scenario(0.0, 1.5, seed=4, start_m=95.0)
+    loc = make()
+    poses, _, _ = feed(loc, events)
+    err, sigma, _ = errors_of(poses[-1:], traj)
+    assert abs(err[0, 0]) < 0.01
+    assert abs(poses[-1].speed_mps) < 0.005
+    assert np.all(np.abs(err[0]) <= 3.0 * sigma[0])
+
+
+def test_delayed_fixes_give_the_in_order_result():
+    """Frames arriving 40 ms late are applied at their own time: same final state."""
+    traj, events = scenario(80.0, 1.5, seed=5)
+    late = make()
+    feed(late, events)
+    # Re-order so that every frame is processed as soon as the IMU has passed it.
+    prompt = []
+    for arrival, kind, payload in events:
+        key = arrival if kind == 'imu' else from_stamp_ns(payload[0]) + 0.0222
+        prompt.append((key, kind, payload))
+    prompt.sort(key=lambda e: (e[0], e[1] == 'frame'))
+    in_order = make()
+    feed(in_order, prompt)
+    a, b = late.current_state(), in_order.current_state()
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.P, b.P, rtol=1e-6, atol=1e-15)
+
+
+def test_gating_rejects_an_injected_wrong_lamp_and_reports_it():
+    traj, events = scenario(60.0, 4.0, seed=6)
+    injected = []
+
+    def spoof(stamp, observations, truth):
+        out = []
+        for obs, tr in zip(observations, truth):
+            if tr['uid'] == 4096 + 4 and obs.uid is not None:
+                obs = copy.copy(obs)
+                obs.uid = 4096 + 5                 # the next lamp's UID on lamp 4's spot
+                injected.append(stamp)
+            out.append(obs)
+        return out
+
+    loc = make()
+    poses, fixes, logs = feed(loc, events, spoof)
+    assert injected
+    rejected = [f for f in fixes if f.status == 'rejected_gate']
+    assert len(rejected) == len(injected)
+    assert all(f.lamp_uid == 4096 + 5 for f in rejected)
+    assert not any(f.status == 'reinitialised' for f in fixes)
+    assert any(e.code == 'fix_contradiction' for e in logs)
+    err, sigma, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.04          # the state never followed the spoof
+    state, level, msg, _ = loc.status()
+    assert state == IntegrityState.TRACKING and level == Level.WARN
+    assert '0x1005' in msg and 'spoofed' in msg
+
+
+def test_recovers_from_a_spoofed_first_lamp_after_two_genuine_ones():
+    traj, events = scenario(60.0, 5.0, seed=7)
+    first = []
+
+    def spoof_first(stamp, observations, truth):
+        out = []
+        for obs, tr in zip(observations, truth):
+            if tr['uid'] == 4096 + 1 and obs.uid is not None:
+                obs = copy.copy(obs)
+                obs.uid = 4096 + 3                 # claims to be a lamp 20 m further
+                first.append(stamp)
+            out.append(obs)
+        return out
+
+    poses, fixes, logs = feed(make(), events, spoof_first)
+    assert first
+    assert any(f.status == 'reinitialised' for f in fixes)
+    assert any(e.code == 'reinitialised' and e.level == Level.ERROR for e in logs)
+    err, _, t = errors_of(poses, traj)
+    assert np.max(np.abs(err[t > 3.0, 0])) < 0.05
+
+
+def test_unconfirmed_lamps_are_used_only_as_the_predicted_lamp():
+    # Decoder never confirms after the first lamp: later lamps arrive without UIDs.
+    traj, events = scenario(60.0, 4.0, seed=8)
+
+    def strip(stamp, observations, truth):
+        return [obs if tr['uid'] == 4096 + 1 else LampObservation(
+            obs.stamp_ns, None, obs.uv_left, obs.uv_right, obs.sigma_u_px, obs.sigma_v_px)
+            for obs, tr in zip(observations, truth)]
+
+    poses, fixes, _ = feed(make(), events, strip)
+    used = [f for f in fixes if f.status == 'accepted' and f.uid is None]
+    seen = [(tr['t_s'], tr['uid']) for _, kind, payload in events if kind == 'frame'
+            for tr in payload[2]]
+    t_seen = np.array([t for t, _ in seen])
+    assert len(used) > 50
+    for f in used:
+        # The spot seen at that instant (the measurement time rests on the noisy row).
+        k = int(np.argmin(np.abs(t_seen - from_stamp_ns(f.measurement_ns))))
+        assert abs(t_seen[k] - from_stamp_ns(f.measurement_ns)) < 1e-4
+        assert seen[k][1] == f.lamp_uid
+    err, sigma, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.06
+    assert np.mean(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0]) >= 0.99
+
+
+def test_select_association_needs_exactly_one_lamp_in_the_gate():
+    assert select_association([('a', 30.0), ('b', 2.0)], 16.0) == ('b', 'predicted lamp')
+    assert select_association([('a', 3.0), ('b', 2.0)], 16.0)[0] is None
+    assert select_association([('a', 30.0)], 16.0)[0] is None
+
+
+def test_unconfirmed_lamp_is_not_used_while_the_state_is_uncertain():
+    loc = make(initial_chainage_m=52.0, initial_chainage_sigma_m=5.0)
+    traj, events = scenario(0.0, 0.5, seed=9, start_m=52.0)
+
+    def strip(stamp, observations, truth):
+        return [LampObservation(o.stamp_ns, None, o.uv_left, o.uv_right) for o in observations]
+
+    poses, fixes, _ = feed(loc, events, strip)
+    assert fixes and all(f.status == 'unconfirmed_skipped' for f in fixes)
+    assert all('uncertain' in f.detail for f in fixes)
+    assert poses                                   # a prior allows publishing at once
+
+
+def test_bad_input_is_skipped_with_warnings_never_raises():
+    traj, events = scenario(40.0, 2.0, seed=10)
+    loc = make()
+    feed(loc, events[:len(events) // 2])
+    t_last = loc.newest_ns
+    codes = []
+
+    def run(report):
+        codes.extend(e.code for e in report.events)
+        return report
+
+    run(loc.add_imu(ImuSample(t_last + 2_500_000, [np.nan, 0.0, 9.8])))
+    run(loc.add_imu(ImuSample(t_last + 2_500_000, [0.0, 0.0, 9.8], quat_xyzw=[0, 0, 0, 0])))
+    run(loc.add_imu(ImuSample(t_last - 5_000_000, [0.0, 0.0, 9.8])))        # out of order
+    stamp = t_last - 30_000_000
+    run(loc.add_frame(stamp, [LampObservation(stamp, 0x7FFF, [900.0, 200.0], [880.0, 200.0])]))
+    run(loc.add_frame(stamp, [LampObservation(stamp, 4097, [np.nan, 200.0], [880.0, 200.0])]))
+    run(loc.add_frame(stamp, [LampObservation(stamp, 4097, [900.0, 200.0], [905.0, 200.0])]))
+    assert {'imu_nonfinite', 'imu_out_of_order', 'unknown_uid', 'bad_observation'} <= set(codes)
+    assert loc.monitor.counters.unknown_uid == 1
+    assert loc.initialized
+    # The rest of the run is unaffected.
+    poses, _, _ = feed(loc, events[len(events) // 2:])
+    err, _, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.04
+
+
+def test_time_jump_backwards_resets_and_starts_over():
+    traj, events = scenario(40.0, 2.0, seed=11)
+    loc = make()
+    feed(loc, events)
+    assert loc.initialized
+    report = loc.add_imu(ImuSample(EPOCH_NS, [0.0, 0.0, 9.80665], quat_xyzw=[0, 0, 0, 1]))
+    assert [e.code for e in report.events] == ['time_reset']
+    assert not loc.initialized and loc.monitor.counters.time_resets == 1
+    poses, _, _ = feed(loc, events[1:])                # the bag loops: works again
+    err, _, _ = errors_of(poses, traj)
+    assert poses and np.max(np.abs(err[:, 0])) < 0.04
+
+
+def test_without_imu_the_fixes_still_give_a_pose():
+    traj, events = scenario(40.0, 2.0, seed=12)
+    frames_only = [e for e in events if e[1] == 'frame']
+    poses, fixes, _ = feed(make(), frames_only)
+    assert sum(f.status == 'accepted' for f in fixes) > 20
+    err, sigma, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.1
+    assert np.all(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0])
+
+
+def test_an_imu_that_starts_late_is_still_used():
+    """The IMU node starts 0.5 s after the camera (its first samples come in one burst):
+    fixes go ahead without it, then the late samples are inserted into the history."""
+    traj, events = scenario(60.0, 3.0, seed=14)
+    late = [(max(a, 0.5) if kind == 'imu' else a, k, kind, p)
+            for k, (a, kind, p) in enumerate(events)]
+    late.sort(key=lambda e: (e[0], e[1]))
+    loc = make()
+    poses, fixes, logs = feed(loc, [(a, kind, p) for a, _, kind, p in late])
+    assert loc.monitor.counters.imu_rejected == 0
+    err, sigma, t = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.06
+    assert np.mean(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0]) >= 0.99
+    reference = make()
+    feed(reference, events)
+    assert loc.newest_ns == reference.newest_ns
+    assert loc.current_state().x[0] == pytest.approx(reference.current_state().x[0], abs=0.01)
+
+
+def test_raw_mode_publishes_single_frame_fixes():
+    traj, events = scenario(40.0, 1.0, seed=13)
+    poses, fixes, _ = feed(make(use_kalman=False), events)
+    assert poses and all(p.kind == 'raw' for p in poses)
+    assert len(poses) == sum(f.status == 'accepted' for f in fixes)
+    err, _, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.15
+
+
+def test_a_single_frame_cold_start_publishes_only_once_the_speed_is_known():
+    traj, events = scenario(120.0, 1.5, seed=15)
+
+    def confirmed_only(stamp, observations, truth):
+        return [o for o in observations if o.uid is not None]
+
+    loc = make()
+    poses, fixes, _ = feed(loc, events, confirmed_only)
+    init = [f for f in fixes if f.status == 'initialised']
+    assert init and init[0].detail == '0 earlier frames'
+    assert poses and all(p.chainage_sigma_m <= 0.5 for p in poses)
+    err, sigma, _ = errors_of(poses, traj)
+    assert np.max(np.abs(err[:, 0])) < 0.1

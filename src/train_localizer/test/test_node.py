@@ -1,0 +1,250 @@
+"""train_localizer_node in-process: simulated inputs over DDS, outputs and bad input.
+
+``spots/pairs`` and ``vlc/lamps`` messages are built with spot_locator's and
+vlc_decoder's own conversions, so the node is tested against their real field layouts.
+"""
+import math
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+
+from spot_locator import conversions as spot_conversions  # noqa: E402
+from vlc_decoder import conversions as decoder_conversions  # noqa: E402
+from vlc_stereo_camera.core.camera import StereoRig  # noqa: E402
+from vlc_stereo_camera.core.lamp_map import straight_tunnel_map  # noqa: E402
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration  # noqa: E402
+
+from train_localizer import conversions  # noqa: E402
+from train_localizer.core.simulation import (SensorErrors, SensorSimulator,  # noqa: E402
+                                             event_stream, from_stamp_ns)
+from train_localizer.train_localizer_node import TrainLocalizerNode  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+def header(stamp_ns, frame='camera_left_optical_frame'):
+    return Header(stamp=conversions.ns_to_stamp(stamp_ns), frame_id=frame)
+
+
+def imu_msg(sample):
+    msg = Imu(header=header(sample.stamp_ns, 'base_link'))
+    a, w, q = sample.accel_mps2, sample.gyro_rps, sample.quat_xyzw
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = map(float, a)
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = map(float, w)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
+    msg.orientation_covariance = [float(v) for v in sample.attitude_cov_rad2.ravel()]
+    return msg
+
+
+def spots_msg(stamp_ns, observations):
+    rec = np.zeros(len(observations), dtype=spot_conversions.PAIR_DTYPE)
+    for i, o in enumerate(observations):
+        rec[i]['u_left'], rec[i]['v_left'] = o.uv_left
+        rec[i]['u_right'], rec[i]['v_right'] = o.uv_right
+        rec[i]['disparity'] = o.disparity_px
+        rec[i]['stamp_offset_s'] = math.nan
+        for f in ('sigma_u_left', 'sigma_v_left', 'sigma_u_right', 'sigma_v_right'):
+            rec[i][f] = o.sigma_u_px
+        rec[i]['sigma_disparity'] = math.sqrt(2.0) * o.sigma_u_px
+    return spot_conversions.records_to_cloud(rec, header(stamp_ns))
+
+
+def lamps_msg(stamp_ns, observations):
+    rec = np.zeros(len(observations), dtype=decoder_conversions.LAMP_DTYPE)
+    for i, o in enumerate(observations):
+        rec[i]['track_id'] = i + 1
+        rec[i]['uid'] = o.uid or 0
+        rec[i]['state'] = 2 if o.uid is not None else 1
+        rec[i]['t_offset_s'] = math.nan
+        # The decoder's centre is coarser than the spot locator's.
+        rec[i]['left_u'], rec[i]['left_v'] = o.uv_left[0] + 0.6, o.uv_left[1] - 0.4
+        rec[i]['right_u'], rec[i]['right_v'] = o.uv_right
+    return decoder_conversions.array_to_cloud(rec, header(stamp_ns))
+
+
+class Harness:
+    """Localizer node + a test node, one executor, lock-step publishing."""
+
+    def __init__(self, params=None):
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx)
+        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+        self.node = TrainLocalizerNode(context=self.ctx, parameter_overrides=overrides)
+        self.test = rclpy.create_node('localizer_test', context=self.ctx)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.pub_imu = self.test.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
+        self.pub_spots = self.test.create_publisher(PointCloud2, 'spots/pairs', 10)
+        self.pub_lamps = self.test.create_publisher(PointCloud2, 'vlc/lamps', 10)
+        self.got = {'pose': [], 'cov': [], 'odom': [], 'diag': []}
+        for topic, typ, key in (('train/pose', PoseStamped, 'pose'),
+                                ('train/pose_with_covariance', PoseWithCovarianceStamped, 'cov'),
+                                ('train/odometry', Odometry, 'odom'),
+                                ('diagnostics', DiagnosticArray, 'diag')):
+            self.test.create_subscription(typ, topic, lambda m, k=key: self.got[k].append(m), 100)
+        self.spin_until(lambda: self.pub_imu.get_subscription_count() > 0
+                        and self.pub_spots.get_subscription_count() > 0
+                        and self.pub_lamps.get_subscription_count() > 0)
+
+    def spin_until(self, condition, timeout_s=5.0):
+        end = time.monotonic() + timeout_s
+        while not condition() and time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.01)
+        return condition()
+
+    def send_imu(self, msg):
+        before = self.node.localizer.newest_ns
+        n_rej = self.node.localizer.monitor.counters.imu_rejected
+        self.pub_imu.publish(msg)
+        assert self.spin_until(lambda: self.node.localizer.newest_ns != before
+                               or self.node.localizer.monitor.counters.imu_rejected != n_rej
+                               or self.node.localizer.monitor.counters.time_resets)
+
+    def send_frame(self, stamp_ns, observations, with_lamps=True):
+        joined = self.node.joiner.stats.joined
+        self.pub_spots.publish(spots_msg(stamp_ns, observations))
+        if with_lamps:
+            self.pub_lamps.publish(lamps_msg(stamp_ns, observations))
+            assert self.spin_until(lambda: self.node.joiner.stats.joined > joined)
+        else:
+            self.spin_until(lambda: False, 0.05)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.test.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def harness(ros_env):
+    made = []
+
+    def make(params=None):
+        h = Harness(params)
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def simulated(speed_kmh, t_end, seed):
+    traj = Trajectory(MotionProfile('constant', start_chainage_m=0.0, speed_mps=speed_kmh / 3.6),
+                      Vibration(seed=seed))
+    sim = SensorSimulator(traj, StereoRig(), straight_tunnel_map(), SensorErrors(),
+                          np.random.default_rng(seed))
+    return traj, event_stream(sim, 0.0, t_end)
+
+
+def test_node_publishes_pose_covariance_and_odometry_against_truth(harness):
+    h = harness()
+    traj, events = simulated(60.0, 1.2, seed=21)
+    for _, kind, payload in events:
+        if kind == 'imu':
+            h.send_imu(imu_msg(payload))
+        else:
+            h.send_frame(payload[0], payload[1])
+    h.spin_until(lambda: False, 0.2)
+    poses = h.got['pose']
+    assert len(poses) > 20
+    assert all(p.header.frame_id == 'map' for p in poses)
+    stamps = np.array([conversions.stamp_to_ns(p.header.stamp) for p in poses])
+    assert np.all(np.diff(stamps) > 0)
+    t = np.array([from_stamp_ns(s) for s in stamps])
+    truth = traj.sample(t)
+    est = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in poses])
+    assert np.max(np.linalg.norm(est - truth.position_m, axis=1)) < 0.06
+    q = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
+                   p.pose.orientation.w] for p in poses])
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    assert len(h.got['cov']) == len(poses) == len(h.got['odom'])
+    cov = np.array(h.got['cov'][-1].pose.covariance).reshape(6, 6)
+    assert np.all(np.linalg.eigvalsh(cov) > 0.0) and cov[0, 0] < 0.05 ** 2
+    odom = h.got['odom'][-1]
+    assert odom.child_frame_id == 'base_link'
+    assert odom.twist.twist.linear.x == pytest.approx(60.0 / 3.6, abs=0.3)
+
+
+def test_no_pose_before_a_confirmed_uid_and_waiting_reported(harness):
+    h = harness({'diagnostics_period_s': 0.1})
+    _, events = simulated(40.0, 0.5, seed=22)
+    for _, kind, payload in events:
+        if kind == 'imu':
+            h.send_imu(imu_msg(payload))
+        else:
+            h.send_frame(payload[0], payload[1], with_lamps=False)
+    assert h.spin_until(lambda: len(h.got['diag']) >= 2)
+    assert not h.got['pose']
+    status = h.got['diag'][-1].status[0]
+    assert status.level == b'\x01'
+    values = {kv.key: kv.value for kv in status.values}
+    assert values['integrity_state'] == 'waiting_for_uid'
+    assert int(values['frames_without_uids']) > 0
+
+
+def test_node_survives_bad_input_and_reports_it(harness):
+    h = harness({'diagnostics_period_s': 0.1})
+    _, events = simulated(40.0, 0.8, seed=23)
+    for _, kind, payload in events:
+        if kind == 'imu':
+            h.send_imu(imu_msg(payload))
+        else:
+            h.send_frame(payload[0], payload[1])
+    loc = h.node.localizer
+    assert loc.initialized
+    last = loc.newest_ns
+    # NaN IMU sample, out-of-order sample.
+    last_imu = [p for _, kind, p in events if kind == 'imu'][-1]
+    bad = imu_msg(last_imu)
+    bad.header.stamp = conversions.ns_to_stamp(last + 2_500_000)
+    bad.linear_acceleration.x = float('nan')
+    h.send_imu(bad)
+    old = imu_msg(events[0][2])
+    old.header.stamp = conversions.ns_to_stamp(last - 10_000_000)
+    h.send_imu(old)
+    assert loc.monitor.counters.imu_rejected == 2
+    # A record for a lamp that is not in the map, and a cloud without the needed fields.
+    # A record for a lamp that is not in the map (in the next frame, then the IMU moves on
+    # past its rows), and clouds that cannot be read.
+    stamp = max(p[0] for _, kind, p in events if kind == 'frame') + 33_333_333
+    obs = [o for _, kind, p in events if kind == 'frame' for o in p[1]][-1]
+    obs.uid, obs.stamp_ns = 0x7ABC, stamp
+    h.send_frame(stamp, [obs])
+    for k in range(1, 25):
+        msg = imu_msg(last_imu)
+        msg.header.stamp = conversions.ns_to_stamp(last + k * 2_500_000)
+        h.send_imu(msg)
+    assert loc.monitor.counters.unknown_uid == 1
+    broken = PointCloud2(header=header(stamp), height=1, width=1, point_step=8,
+                         fields=[PointField(name='u_left', offset=0, datatype=7, count=1)],
+                         data=bytes(8))
+    h.pub_spots.publish(broken)
+    truncated = spots_msg(stamp, [obs])
+    truncated.data = truncated.data[:10]
+    h.pub_spots.publish(truncated)
+    h.spin_until(lambda: False, 0.2)
+    # Time jumps back by 10 s: reset, waiting for a UID again.
+    back = imu_msg(events[0][2])
+    back.header.stamp = conversions.ns_to_stamp(last - 10_000_000_000)
+    h.send_imu(back)
+    assert loc.monitor.counters.time_resets == 1 and not loc.initialized
+    n_diag = len(h.got['diag'])
+    assert h.spin_until(lambda: len(h.got['diag']) > n_diag)
+    values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
+    assert values['unknown_uid'] == '1' and values['time_resets'] == '1'
+    assert values['last_unknown_uid'] == '0x7abc'
+    assert values['integrity_state'] == 'waiting_for_uid'

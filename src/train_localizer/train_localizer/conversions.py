@@ -1,0 +1,177 @@
+"""Messages ↔ core records for the localizer (the only module that knows both).
+
+Inputs:
+
+* ``spots/pairs``, ``vlc/lamps`` (sensor_msgs/PointCloud2) → numpy structured arrays with
+  the messages' own named fields (:func:`cloud_to_records`); the field meanings are the
+  producers' (docs/arch/spot_locator.md, docs/arch/vlc_decoder.md) and are read in
+  :mod:`train_localizer.core.join`;
+* ``imu/data`` (sensor_msgs/Imu) → :class:`~train_localizer.core.observation.ImuSample`;
+* ``stereo/*/camera_info`` → rectified intrinsics and baseline.
+
+Outputs: a :class:`~train_localizer.core.localizer.PoseEstimate` → PoseStamped,
+PoseWithCovarianceStamped and Odometry; the integrity status → DiagnosticStatus.
+"""
+import math
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+from sensor_msgs.msg import PointField
+
+from .core.observation import ImuSample, NS_PER_S
+
+_NUMPY_TYPE = {PointField.INT8: 'i1', PointField.UINT8: 'u1', PointField.INT16: 'i2',
+               PointField.UINT16: 'u2', PointField.INT32: 'i4', PointField.UINT32: 'u4',
+               PointField.FLOAT32: 'f4', PointField.FLOAT64: 'f8'}
+
+
+def stamp_to_ns(stamp):
+    """builtin_interfaces/Time → integer ns."""
+    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns):
+    """Integer ns → builtin_interfaces/Time."""
+    sec, nanosec = divmod(int(ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def cloud_to_records(msg):
+    """sensor_msgs/PointCloud2 → structured array with the message's named fields.
+
+    Raises ValueError for an unknown field type, a field outside the point, or data
+    shorter than ``width·height`` points.
+    """
+    endian = '>' if msg.is_bigendian else '<'
+    names, formats, offsets = [], [], []
+    for f in msg.fields:
+        if f.datatype not in _NUMPY_TYPE:
+            raise ValueError(f'field {f.name!r}: unknown PointField datatype {f.datatype}')
+        fmt = np.dtype(endian + _NUMPY_TYPE[f.datatype])
+        if f.count > 1:
+            fmt = np.dtype((fmt, (f.count,)))
+        if f.offset + fmt.itemsize > msg.point_step:
+            raise ValueError(f'field {f.name!r} ends beyond point_step {msg.point_step}')
+        names.append(f.name)
+        formats.append(fmt)
+        offsets.append(f.offset)
+    if not names:
+        return np.zeros(0)
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                      'itemsize': msg.point_step})
+    n = int(msg.width) * int(msg.height)
+    buf = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+    if buf.size < n * msg.point_step:
+        raise ValueError(f'point cloud data {buf.size} B < {n} points x {msg.point_step} B')
+    return np.frombuffer(buf[:n * msg.point_step].tobytes(), dtype=dtype)
+
+
+def require_fields(records, names, topic):
+    """Raise ValueError naming the missing fields of a record array."""
+    have = set(records.dtype.names or ())
+    missing = [n for n in names if n not in have]
+    if missing and records.size:
+        raise ValueError(f'{topic}: missing fields {", ".join(missing)}')
+
+
+def imu_from_msg(msg):
+    """sensor_msgs/Imu → ImuSample.
+
+    ``orientation_covariance[0] == −1`` (REP-145: no orientation) → no attitude; an
+    all-zero covariance (unknown) → attitude without covariance.
+    """
+    cov = np.asarray(msg.orientation_covariance, dtype=float).reshape(3, 3)
+    q = None
+    att_cov = None
+    if cov[0, 0] != -1.0:
+        o = msg.orientation
+        q = np.array([o.x, o.y, o.z, o.w])
+        if np.any(cov != 0.0):
+            att_cov = cov
+    a, w = msg.linear_acceleration, msg.angular_velocity
+    return ImuSample(stamp_ns=stamp_to_ns(msg.header.stamp), accel_mps2=[a.x, a.y, a.z],
+                     gyro_rps=[w.x, w.y, w.z], quat_xyzw=q, attitude_cov_rad2=att_cov)
+
+
+def intrinsics_from_camera_info(left, right):
+    """(fx, fy, cx, cy, baseline_m) of a rectified pair from its CameraInfo messages.
+
+    Uses the projection matrices P; baseline = (P_left[0,3] − P_right[0,3]) / fx.
+    Raises ValueError if they do not describe a rectified pair with a positive baseline.
+    """
+    pl = np.asarray(left.p, float).reshape(3, 4)
+    pr = np.asarray(right.p, float).reshape(3, 4)
+    fx, fy = pl[0, 0], pl[1, 1]
+    if not (fx > 0.0 and fy > 0.0):
+        raise ValueError('camera_info P has no positive focal length')
+    if not np.allclose(pl[:, :3], pr[:, :3], rtol=1e-6, atol=1e-6):
+        raise ValueError('left and right camera_info P differ: not a rectified pair')
+    baseline = (pl[0, 3] - pr[0, 3]) / fx
+    if not baseline > 0.0:
+        raise ValueError(f'stereo baseline {baseline} m is not positive')
+    return float(fx), float(fy), float(pl[0, 2]), float(pl[1, 2]), float(baseline)
+
+
+def _fill_pose(pose_msg, est):
+    p, q = est.position_m, est.quat_xyzw
+    pose_msg.position.x, pose_msg.position.y, pose_msg.position.z = (float(v) for v in p)
+    (pose_msg.orientation.x, pose_msg.orientation.y, pose_msg.orientation.z,
+     pose_msg.orientation.w) = (float(v) for v in q)
+
+
+def pose_covariance_6x6(est):
+    """Row-major 6×6 (x, y, z, rot x, rot y, rot z) covariance of a PoseEstimate."""
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = est.position_cov_m2
+    cov[3:, 3:] = est.attitude_cov_rad2
+    return cov
+
+
+def pose_messages(est, map_frame, base_frame):
+    """PoseStamped, PoseWithCovarianceStamped and Odometry of one PoseEstimate.
+
+    All stamped with the instant the estimate describes. The odometry twist is in
+    ``base_frame`` axes (nav_msgs convention): the along-track speed rotated by the
+    attitude, and the IMU's angular rate; a raw fix (no speed) gets a twist covariance
+    of 1e6 on the linear axes.
+    """
+    stamp = ns_to_stamp(est.stamp_ns)
+    ps = PoseStamped()
+    ps.header.stamp, ps.header.frame_id = stamp, map_frame
+    _fill_pose(ps.pose, est)
+    pwc = PoseWithCovarianceStamped()
+    pwc.header.stamp, pwc.header.frame_id = stamp, map_frame
+    _fill_pose(pwc.pose.pose, est)
+    cov = pose_covariance_6x6(est)
+    pwc.pose.covariance = [float(v) for v in cov.ravel()]
+    odom = Odometry()
+    odom.header.stamp, odom.header.frame_id = stamp, map_frame
+    odom.child_frame_id = base_frame
+    _fill_pose(odom.pose.pose, est)
+    odom.pose.covariance = pwc.pose.covariance
+    x, y, z, w = est.quat_xyzw
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    speed_known = math.isfinite(est.speed_mps)
+    v_body = R.T @ np.array([est.speed_mps if speed_known else 0.0, 0.0, 0.0])
+    t = odom.twist.twist
+    t.linear.x, t.linear.y, t.linear.z = (float(v) for v in v_body)
+    t.angular.x, t.angular.y, t.angular.z = (float(v) for v in est.angular_velocity_rps)
+    tcov = np.zeros((6, 6))
+    tcov[0, 0] = est.speed_var if speed_known else 1e6
+    tcov[1, 1] = tcov[2, 2] = 1e-4 if speed_known else 1e6
+    tcov[3, 3] = tcov[4, 4] = tcov[5, 5] = 1e-4
+    odom.twist.covariance = [float(v) for v in tcov.ravel()]
+    return ps, pwc, odom
+
+
+def diagnostic_status(name, hardware_id, level, message, values):
+    """DiagnosticStatus with ``values`` (dict) as string KeyValues."""
+    status = DiagnosticStatus(level=bytes([int(level)]), name=name, message=message,
+                              hardware_id=hardware_id)
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    return status

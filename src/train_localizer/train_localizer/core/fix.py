@@ -1,0 +1,331 @@
+"""One lamp, one stereo frame → one along-track fix of ``base_link`` with its variance.
+
+Geometry (conventions of ``vlc_stereo_camera.core.camera``): the left optical centre
+sits at ``t_base_cam`` in ``base_link``, its optical axes are the columns of
+``R_base_cam``; the right camera is ``baseline_m`` further along the left optical x
+axis. ``R_map_base`` is the platform attitude (``base_link`` → ``map``).
+
+Two fixes are offered:
+
+* :func:`paper_fix` — the paper's chain: triangulate (eq. 12), rotate the camera-frame
+  lamp vector into ``map`` with the attitude and subtract it from the lamp's map
+  position (eq. 13–14). Its along-track component inherits the attitude error times the
+  lamp's lateral/vertical lever (≈ 2.5 m: 0.5° of heading error ≈ 2 cm).
+* :func:`constrained_fix` — the track constraint (``base_link`` lateral and vertical
+  offsets are known to vibration level, mm) leaves one unknown, the chainage ``s``; the
+  three triangulated coordinates are three measurements of it. A generalised
+  least-squares fit weights them with the full covariance: the pixel noise
+  (triangulation Jacobian: the range is noisy, σz = z²·σd/(f·b), the direction is
+  precise) plus the attitude error mapped through the lamp's lever (large across the
+  line of sight, zero along it — the stereo range is attitude-independent) plus the
+  track and lamp-survey tolerances. For a lamp far ahead the fit therefore rests on the
+  range, ``s = x_lamp − √(r² − Δy² − Δz²)`` with no attitude error; for a near lamp
+  (small along-track offset, where that square root is ill-conditioned) on the
+  direction, whose attitude error is small at short range. The fit's residual (two
+  degrees of freedom) tests range and direction against each other, which flags a
+  wrong stereo match or a lamp off its surveyed place.
+
+Every fix splits its variance into a *random* part (pixel noise, independent from frame
+to frame) and a *systematic* part (attitude, track and survey errors, correlated over
+many frames); the filter uses the sum and keeps the systematic part as a floor of the
+published covariance, because averaging frames does not remove it.
+"""
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from vlc_stereo_camera.core.camera import StereoRig, mount_rotation
+
+from .observation import NS_PER_S
+
+_E_X = np.array([1.0, 0.0, 0.0])
+
+
+def skew(v):
+    """Cross-product matrix (3, 3) of a vector (3,): ``skew(a) @ b == a × b``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+@dataclass
+class RigGeometry:
+    """Rectified stereo rig on ``base_link`` plus its rolling-shutter timing.
+
+    Attributes
+    ----------
+    fx, fy, cx, cy : float
+        Rectified intrinsics of both cameras, px.
+    baseline_m : float
+        Right optical centre minus left, along the left optical x axis, m.
+    t_base_cam : ndarray (3,)
+        Left optical centre in ``base_link``, m.
+    R_base_cam : ndarray (3, 3)
+        Columns: the optical x, y, z axes expressed in ``base_link``.
+    row_time_s, exposure_s : float
+        Rolling shutter: row r is exposed over [t0 + r·row_time_s, … + exposure_s], s.
+    """
+
+    fx: float = 1040.0
+    fy: float = 1040.0
+    cx: float = 639.5
+    cy: float = 359.5
+    baseline_m: float = 0.12
+    t_base_cam: np.ndarray = None
+    R_base_cam: np.ndarray = None
+    row_time_s: float = 30e-6
+    exposure_s: float = 50e-6
+
+    def __post_init__(self):
+        if self.t_base_cam is None or self.R_base_cam is None:
+            # The rig's own mounting defaults: one source of truth for the geometry.
+            rig = StereoRig()
+            if self.t_base_cam is None:
+                self.t_base_cam = rig.cam_positions_base()[0]
+            if self.R_base_cam is None:
+                self.R_base_cam = rig.R_base_cam
+        self.t_base_cam = np.asarray(self.t_base_cam, dtype=float).reshape(3)
+        self.R_base_cam = np.asarray(self.R_base_cam, dtype=float).reshape(3, 3)
+        if not (self.fx > 0.0 and self.fy > 0.0 and self.baseline_m > 0.0):
+            raise ValueError('fx, fy and baseline_m must be > 0')
+        if self.row_time_s < 0.0 or self.exposure_s < 0.0:
+            raise ValueError('row_time_s and exposure_s must be >= 0')
+
+    @classmethod
+    def from_mount(cls, mount_xyz_m, placement_angle_deg, pitch_deg, **kwargs):
+        """Geometry from the rig's mounting parameters (see ``mount_rotation``)."""
+        return cls(t_base_cam=np.asarray(mount_xyz_m, dtype=float),
+                   R_base_cam=mount_rotation(placement_angle_deg, pitch_deg), **kwargs)
+
+    @classmethod
+    def from_stereo_rig(cls, rig, row_time_s=30e-6, exposure_s=50e-6):
+        """Geometry of a ``vlc_stereo_camera.core.camera.StereoRig`` (the truth)."""
+        k = rig.intrinsics
+        return cls(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, baseline_m=rig.baseline_m,
+                   t_base_cam=rig.cam_positions_base()[0], R_base_cam=rig.R_base_cam,
+                   row_time_s=row_time_s, exposure_s=exposure_s)
+
+
+@dataclass
+class FixConfig:
+    """Error model and switches of a fix.
+
+    Attributes
+    ----------
+    use_range_constraint : bool
+        True: :func:`constrained_fix` (track constraint + stereo range); False: the
+        paper's :func:`paper_fix`.
+    track_sigma_yz_m : tuple of 2 floats
+        1σ of ``base_link``'s lateral and vertical offset from its nominal place on the
+        track (vibration and track irregularity), m.
+    track_offset_yz_m : tuple of 2 floats
+        Nominal lateral and vertical position of ``base_link`` in ``map``, m.
+    lamp_position_sigma_m : float
+        1σ of each coordinate of a lamp's surveyed map position, m (also absorbs small
+        spot-centre biases; a systematic error).
+    min_disparity_px : float
+        Pairs with a smaller disparity (range beyond fx·b/d) are not used, px.
+    attitude_weight_inflation : float
+        Factor on the attitude covariance in the *weights* of the constrained fit (not
+        in its reported variance). The attitude error is correlated over many frames,
+        so unlike pixel noise it does not average out in the filter; weighting it as if
+        it were ``k`` times larger shifts the fit toward the attitude-free range
+        wherever the range is informative. 1 = plain single-frame GLS.
+    """
+
+    use_range_constraint: bool = True
+    track_sigma_yz_m: tuple = (0.004, 0.004)
+    track_offset_yz_m: tuple = (0.0, 0.0)
+    lamp_position_sigma_m: float = 0.005
+    min_disparity_px: float = 4.0
+    attitude_weight_inflation: float = 4.0
+
+
+@dataclass
+class FixResult:
+    """Along-track position of ``base_link`` from one lamp in one frame.
+
+    Attributes
+    ----------
+    chainage_m : float
+        Estimated chainage (map x) of ``base_link`` at the measurement time, m.
+    var_m2 : float
+        Total variance of ``chainage_m``, m² (= random + systematic).
+    var_random_m2, var_systematic_m2 : float
+        Pixel-noise part and attitude/track/survey part, m².
+    chi2_geometry : float
+        GLS residual χ² (2 degrees of freedom) of :func:`constrained_fix`; NaN for
+        :func:`paper_fix`.
+    position_m : ndarray (3,)
+        Full ``base_link`` position of the fix in ``map`` (paper fix: eq. 14;
+        constrained fix: chainage and the nominal track offsets), m.
+    range_m : float
+        Stereo range from the left optical centre to the lamp, m.
+    """
+
+    chainage_m: float
+    var_m2: float
+    var_random_m2: float
+    var_systematic_m2: float
+    chi2_geometry: float
+    position_m: np.ndarray
+    range_m: float
+
+    @property
+    def sigma_m(self):
+        return math.sqrt(self.var_m2)
+
+
+def measurement_time_ns(obs, geometry, use_exposure_stamping=True):
+    """Instant a lamp observation describes, ns.
+
+    The exposure mid-time of the rows the spot covers (rolling shutter: the spot's rows
+    are exposed ``row·row_time_s`` after the image stamp; 1 ms is 2.8 cm at 100 km/h).
+    Uses the record's own offset when it has one, else the spot's centre row
+    ``v = (v_left + v_right)/2``: ``stamp + v·row_time_s + exposure_s/2``. With
+    ``use_exposure_stamping`` False the image stamp itself (the paper's timing).
+    """
+    if not use_exposure_stamping:
+        return int(obs.stamp_ns)
+    offset_s = obs.exposure_mid_offset_s
+    if not math.isfinite(offset_s):
+        v = 0.5 * (obs.uv_left[1] + obs.uv_right[1])
+        offset_s = max(v, 0.0) * geometry.row_time_s + 0.5 * geometry.exposure_s
+    return int(obs.stamp_ns) + int(round(offset_s * NS_PER_S))
+
+
+def triangulate(obs, geometry, min_disparity_px=0.0):
+    """Stereo triangulation of a spot pair in the left optical frame (paper eq. 12).
+
+    ``Z = fx·b/d``, ``X = (u_l − cx)·b/d``, ``Y = (v − cy)·(fx/fy)·b/d`` with the
+    disparity ``d = u_l − u_r`` and ``v`` the mean row of the two centres.
+
+    Parameters
+    ----------
+    obs : LampObservation
+    geometry : RigGeometry
+    min_disparity_px : float
+        Smaller disparities are refused (too far, or a wrong pair), px.
+
+    Returns
+    -------
+    p_cam : ndarray (3,) or None
+        Lamp in the left optical frame, m; None when the disparity is too small.
+    cov_cam : ndarray (3, 3) or None
+        First-order covariance of ``p_cam`` from the centre uncertainties, m².
+    """
+    g = geometry
+    d = obs.disparity_px
+    if not d > max(min_disparity_px, 0.0):
+        return None, None
+    u = obs.uv_left[0]
+    v = 0.5 * (obs.uv_left[1] + obs.uv_right[1])
+    k = g.baseline_m / d
+    p = np.array([(u - g.cx) * k, (v - g.cy) * (g.fx / g.fy) * k, g.fx * k])  # paper eq. 12
+    su2 = obs.sigma_u_px ** 2
+    sd2 = obs.sigma_disparity_px ** 2 if math.isfinite(obs.sigma_disparity_px) else 2.0 * su2
+    # d = u_l − u_r shares u_l's error: cov(u_l, d) = σu² for independent centres,
+    # clipped so that the input covariance stays positive definite.
+    c_ud = min(su2, 0.999 * math.sqrt(su2 * sd2))
+    cov_in = np.array([[su2, 0.0, c_ud], [0.0, 0.5 * obs.sigma_v_px ** 2, 0.0],
+                       [c_ud, 0.0, sd2]])
+    J = np.array([[k, 0.0, -p[0] / d],
+                  [0.0, (g.fx / g.fy) * k, -p[1] / d],
+                  [0.0, 0.0, -p[2] / d]])
+    return p, J @ cov_in @ J.T
+
+
+def predicted_camera_point(base_position_m, R_map_base, lamp_position_m, geometry):
+    """Lamp in the left optical frame for a given ``base_link`` pose, m (3,)."""
+    p_base = R_map_base.T @ (np.asarray(lamp_position_m, float) - base_position_m)
+    return geometry.R_base_cam.T @ (p_base - geometry.t_base_cam)
+
+
+def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+    """``base_link`` position from the lamp's map position and the attitude (eq. 13–14).
+
+    ``p_base = R_base_cam·p_cam + t_base_cam`` (eq. 13) and
+    ``p_map(base_link) = p_lamp − R_map_base·p_base`` (eq. 14); the chainage is its x.
+
+    Parameters
+    ----------
+    p_cam, cov_cam : ndarray (3,), (3, 3)
+        Triangulated lamp and covariance (:func:`triangulate`), m, m².
+    lamp_position_m : ndarray (3,)
+        Lamp centre in ``map``, m.
+    R_map_base : ndarray (3, 3)
+        Platform attitude.
+    cov_att : ndarray (3, 3)
+        Attitude error covariance about map x, y, z, rad².
+    geometry : RigGeometry
+    config : FixConfig
+
+    Returns
+    -------
+    FixResult
+    """
+    w = geometry.R_base_cam @ p_cam + geometry.t_base_cam            # paper eq. 13
+    Rw = R_map_base @ w
+    position = np.asarray(lamp_position_m, float) - Rw               # paper eq. 14
+    J_cam = -(R_map_base @ geometry.R_base_cam)[0]
+    # R_true = Exp(δθ)·R: p = lamp − Exp(δθ)·R·w ⇒ ∂p/∂δθ = [R·w]×
+    J_att = skew(Rw)[0]
+    var_random = float(J_cam @ cov_cam @ J_cam)
+    var_sys = float(J_att @ cov_att @ J_att) + config.lamp_position_sigma_m ** 2
+    return FixResult(chainage_m=float(position[0]), var_m2=var_random + var_sys,
+                     var_random_m2=var_random, var_systematic_m2=var_sys,
+                     chi2_geometry=float('nan'), position_m=position,
+                     range_m=float(np.linalg.norm(p_cam)))
+
+
+def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+    """Chainage of ``base_link`` by generalised least squares under the track constraint.
+
+    Model (``base_link`` at ``(s, y0, z0)`` in ``map``, attitude ``R``)::
+
+        p_cam = R_cbᵀ · (Rᵀ · (p_lamp − (s, y0, z0)) − t_cb)  =  h0 + H·s
+
+    with ``H = −R_cbᵀ·Rᵀ·e_x``. The measurement covariance is the triangulation
+    covariance plus the attitude error (``R_cbᵀ·Rᵀ·[d]×·Σ_att·…ᵀ``, ``d`` = lamp − base),
+    the track offsets and the lamp survey error; ``s = (HᵀWH)⁻¹·HᵀW·(p_cam − h0)``.
+    See the module docstring for why this uses the range where it is good and the
+    direction where that is better.
+
+    Parameters and returns as :func:`paper_fix`; ``chi2_geometry`` is the weighted
+    residual (χ² with 2 degrees of freedom when the models hold).
+    """
+    g = geometry
+    lamp = np.asarray(lamp_position_m, float)
+    y0, z0 = config.track_offset_yz_m
+    A = g.R_base_cam.T @ R_map_base.T                  # map vector → optical frame
+    H = -A[:, 0]
+    h0 = A @ (lamp - np.array([0.0, y0, z0])) - g.R_base_cam.T @ g.t_base_cam
+    r = p_cam - h0
+    A_yz = A[:, 1:]
+    cov_fixed = (A_yz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_yz.T
+                 + np.eye(3) * config.lamp_position_sigma_m ** 2)
+    k_att = config.attitude_weight_inflation
+    s = float(H @ r) / float(H @ H)
+    for _ in range(2):
+        # The attitude term depends on the lamp's lever d = lamp − base, i.e. on s.
+        J_att = A @ skew(lamp - np.array([s, y0, z0]))
+        cov_att_m = J_att @ cov_att @ J_att.T
+        W = np.linalg.inv(cov_cam + k_att * cov_att_m + cov_fixed)
+        WH = W @ H
+        info = float(H @ WH)
+        s = float(WH @ r) / info
+    gain = WH / info
+    cov_sys = cov_att_m + cov_fixed
+    var_random = float(gain @ cov_cam @ gain)
+    var_sys = float(gain @ cov_sys @ gain)
+    var = var_random + var_sys
+    e = r - H * s
+    W_true = W if k_att == 1.0 else np.linalg.inv(cov_cam + cov_sys)
+    return FixResult(chainage_m=s, var_m2=var, var_random_m2=var_random,
+                     var_systematic_m2=var_sys, chi2_geometry=float(e @ W_true @ e),
+                     position_m=np.array([s, y0, z0]), range_m=float(np.linalg.norm(p_cam)))
+
+
+def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+    """:func:`constrained_fix` or :func:`paper_fix` as ``config.use_range_constraint`` says."""
+    fn = constrained_fix if config.use_range_constraint else paper_fix
+    return fn(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config)

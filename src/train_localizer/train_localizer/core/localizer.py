@@ -1,0 +1,875 @@
+"""The localizer without ROS: IMU samples and lamp observations in, poses out.
+
+Time handling (all stamps integer ns of the sensor clock):
+
+* Every accepted IMU sample adds a *step* to a short history: its time, the
+  along-track acceleration input over the interval that ends there, and the filter
+  state after it. A lamp fix is older than the newest IMU sample (image processing
+  takes longer than an IMU period), so it is applied where it belongs: a step is
+  inserted at the fix's measurement time (predicted from the step before it with that
+  interval's input), updated, and every later step is re-propagated with its stored
+  input. The result is exactly what an in-order filter would have produced.
+* A fix newer than the newest IMU sample waits for the IMU to catch up, unless the IMU
+  lags the newest frame by more than ``imu_timeout_s`` (or never came); then the filter
+  is extrapolated to the fix with an unknown acceleration (``unknown_accel_sigma_mps2``).
+  An IMU sample that arrives later but is newer than the newest IMU sample is inserted
+  into the history like a fix, so an IMU that starts late or lags is used as soon as
+  it arrives.
+* Poses are emitted on a grid of ``publish_rate_hz`` in sensor time as the IMU passes
+  each grid instant (so also between fixes, and with exact stamps), and, with
+  ``publish_on_fix``, once more right after a fix at the newest step, so a frame's
+  information is published as soon as it is used.
+* Every measurement update (lamp fix, zero-velocity update, (re-)initialisation) is
+  stored with its step and re-applied when an older fix forces a replay.
+* Cold start without a prior: nothing is published until a confirmed UID (and until
+  the chainage 1σ is below ``max_sigma_m``, i.e. the speed is known). The
+  confirming frame usually comes after several frames in which the decoder tracked the
+  same lamp without a UID yet; those observations are kept for ``init_lookback_s`` and,
+  once lamp L is confirmed, chained backwards frame by frame (each within
+  ``max_speed_mps`` of the next and farther from every other map lamp), so the filter
+  starts from a short track of L and knows the speed at once.
+* Zero-velocity updates while the IMU shows a standing platform
+  (:mod:`train_localizer.core.standstill`).
+* A sample older than the newest by more than ``backward_reset_s`` (a restarted clock or
+  a looped bag) resets everything; a smaller step back is out of order and skipped.
+"""
+import bisect
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from imu_compensator.core.rotations import quat_to_matrix
+
+from .fix import FixConfig, RigGeometry, compute_fix, measurement_time_ns, triangulate
+from .integrity import (Contradiction, IntegrityConfig, IntegrityMonitor, Level,
+                        mahalanobis2, select_association)
+from .kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig, initial_state,
+                     innovation, predict, update)
+from .observation import NS_PER_S
+from .standstill import StandstillConfig, StandstillDetector
+
+_DEG = math.pi / 180.0
+
+
+@dataclass
+class LocalizerConfig:
+    """Everything the localizer needs; see config/train_localizer_node.yaml key by key.
+
+    Attributes
+    ----------
+    geometry, fix, kalman, integrity, standstill
+        Sub-configurations (:class:`RigGeometry`, :class:`FixConfig`,
+        :class:`KalmanConfig`, :class:`IntegrityConfig`, :class:`StandstillConfig`).
+    use_imu_attitude : bool
+        Use ``imu/data``'s attitude for the fix geometry and to project the specific
+        force on the track; False: attitude = identity with ``attitude_sigma_unknown_rad``.
+    use_exposure_stamping : bool
+        Stamp each fix at its spot's exposure mid-time; False: at the image stamp.
+    use_kalman : bool
+        Fuse in the Kalman filter; False: publish every accepted single-frame fix raw.
+    publish_rate_hz : float
+        Pose grid in sensor time, Hz.
+    publish_on_fix : bool
+        Also publish right after a fix is applied (lower latency).
+    history_s : float
+        How far back a fix may be applied, s.
+    imu_timeout_s : float
+        The IMU counts as absent (fixes stop waiting for it) while it lags the newest
+        frame stamp by more than this, s.
+    imu_max_gap_s : float
+        A longer IMU interval is a gap: its acceleration is treated as unknown, s.
+    backward_reset_s : float
+        A stamp older than the newest by more than this resets the localizer, s.
+    attitude_sigma_floor_rad : tuple of 3 floats
+        Smallest attitude 1σ about map x, y, z assumed for ``imu/data`` (also used when
+        it carries no covariance), rad.
+    attitude_sigma_unknown_rad : tuple of 3 floats
+        Attitude 1σ when no attitude is used (the platform vibration's span), rad.
+    imu_lever_arm_m : tuple of 3 floats
+        Position of the IMU in ``base_link``, m: its rotational accelerations are
+        removed before the specific force is used.
+    initial_chainage_m : float
+        Prior chainage at start, m; NaN = no prior (no pose until a UID is confirmed).
+    initial_chainage_sigma_m : float
+        1σ of that prior, m.
+    initial_speed_mps : float
+        Prior speed, m/s; NaN = unknown.
+    max_speed_mps : float
+        Highest speed the train can have, m/s (bounds the cold-start lamp track).
+    init_lookback_s : float
+        How far back unconfirmed observations are kept for the cold start, s.
+    """
+
+    geometry: RigGeometry = field(default_factory=RigGeometry)
+    fix: FixConfig = field(default_factory=FixConfig)
+    kalman: KalmanConfig = field(default_factory=KalmanConfig)
+    integrity: IntegrityConfig = field(default_factory=IntegrityConfig)
+    standstill: StandstillConfig = field(default_factory=StandstillConfig)
+    use_imu_attitude: bool = True
+    use_exposure_stamping: bool = True
+    use_kalman: bool = True
+    publish_rate_hz: float = 50.0
+    publish_on_fix: bool = True
+    history_s: float = 1.0
+    imu_timeout_s: float = 0.2
+    imu_max_gap_s: float = 0.05
+    backward_reset_s: float = 1.0
+    attitude_sigma_floor_rad: tuple = (0.05 * _DEG, 0.05 * _DEG, 0.1 * _DEG)
+    attitude_sigma_unknown_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
+    imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
+    initial_chainage_m: float = float('nan')
+    initial_chainage_sigma_m: float = 1.0
+    initial_speed_mps: float = float('nan')
+    max_speed_mps: float = 40.0
+    init_lookback_s: float = 0.5
+
+    def __post_init__(self):
+        for name in ('publish_rate_hz', 'history_s', 'imu_timeout_s', 'imu_max_gap_s',
+                     'backward_reset_s', 'initial_chainage_sigma_m', 'max_speed_mps',
+                     'init_lookback_s'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and > 0, got {value}')
+
+
+@dataclass
+class PoseEstimate:
+    """The pose of ``base_link`` in ``map`` at ``stamp_ns``.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Time the pose describes, ns.
+    position_m : ndarray (3,)
+        Chainage and the nominal track offsets, m.
+    position_cov_m2 : ndarray (3, 3)
+        Covariance of ``position_m`` (along-track: filter variance plus the systematic
+        floor of the last fix), m².
+    speed_mps, speed_var : float
+        Along-track speed and its variance (m/s, m²/s²); NaN for raw fixes.
+    quat_xyzw : ndarray (4,)
+        Attitude of ``base_link`` in ``map``; identity when unknown.
+    attitude_cov_rad2 : ndarray (3, 3)
+        Attitude covariance about map x, y, z, rad² (large when unknown).
+    angular_velocity_rps : ndarray (3,)
+        Angular rate in ``base_link`` (from the newest IMU sample before the stamp).
+    kind : str
+        ``grid`` (publish grid), ``fix`` (right after a fix) or ``raw`` (use_kalman off).
+    """
+
+    stamp_ns: int
+    position_m: np.ndarray
+    position_cov_m2: np.ndarray
+    speed_mps: float
+    speed_var: float
+    quat_xyzw: np.ndarray
+    attitude_cov_rad2: np.ndarray
+    angular_velocity_rps: np.ndarray
+    kind: str
+
+    @property
+    def chainage_m(self):
+        return float(self.position_m[0])
+
+    @property
+    def chainage_sigma_m(self):
+        return math.sqrt(self.position_cov_m2[0, 0])
+
+
+@dataclass
+class FixRecord:
+    """What happened to one lamp observation (for diagnostics and the benchmark).
+
+    ``status`` is one of ``accepted``, ``initialised``, ``reinitialised``,
+    ``rejected_gate``, ``rejected_geometry``, ``unknown_uid``, ``unconfirmed_skipped``,
+    ``too_old``, ``bad_observation``, ``waiting_for_uid``.
+    """
+
+    measurement_ns: int
+    uid: object
+    lamp_uid: object
+    status: str
+    chainage_m: float = float('nan')
+    var_m2: float = float('nan')
+    d2: float = float('nan')
+    detail: str = ''
+
+
+@dataclass
+class Event:
+    """A condition the node should log (throttled per ``code``)."""
+
+    level: Level
+    code: str
+    message: str
+
+
+@dataclass
+class StepReport:
+    """Outputs of one ``add_imu`` / ``add_frame`` call."""
+
+    poses: list = field(default_factory=list)
+    fixes: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+
+
+@dataclass
+class _Prepared:
+    """An observation with its geometry worked out (triangulation and attitude)."""
+
+    t_ns: int
+    obs: object
+    p_cam: np.ndarray
+    cov_cam: np.ndarray
+    R: np.ndarray
+    cov_att: np.ndarray
+
+
+class Localizer:
+    """IMU-driven along-track filter with delayed lamp fixes; see the module docstring.
+
+    Parameters
+    ----------
+    lamp_map : vlc_stereo_camera.core.lamp_map.LampMap
+    config : LocalizerConfig
+    """
+
+    def __init__(self, lamp_map, config=None):
+        self.lamp_map = lamp_map
+        self.config = config or LocalizerConfig()
+        self.monitor = IntegrityMonitor(self.config.integrity)
+        self._period_ns = int(round(NS_PER_S / self.config.publish_rate_hz))
+        self._reset_state()
+
+    # ----------------------------------------------------------------- state
+    def _reset_state(self):
+        cfg = self.config
+        self._t = []        # step times, ns
+        self._a = []        # along-track acceleration input over the interval ending here
+        self._x = []        # FilterState after the step's updates, None before initialisation
+        self._gyro = []     # angular rate at the step (base_link), rad/s
+        self._upd = []      # updates applied at the step, re-applied on replay
+        self._pending = []  # (measurement_ns, seq, observation) waiting for the IMU
+        self._preinit = []  # unconfirmed _Prepared observations kept for the cold start
+        self._seq = 0
+        self._att = AttitudeBuffer(horizon_s=cfg.history_s + 1.0,
+                                   max_gap_s=max(cfg.imu_max_gap_s, 1e-3),
+                                   max_extrapolation_s=cfg.imu_max_gap_s)
+        self._standstill = StandstillDetector(cfg.standstill)
+        self._last_zupt_ns = None
+        self._newest_imu_ns = None
+        self._newest_frame_ns = None
+        self._first_frame_ns = None
+        self._prev_gyro = None
+        self._last_accel = 0.0
+        self._initialized = False
+        self._init_ns = None
+        self._has_fix = False
+        self._systematic_var = cfg.fix.lamp_position_sigma_m ** 2
+        self._last_pub_ns = None
+        self._next_grid_ns = None
+        self._publish_pending = False
+        self._publishing = False
+        self.monitor.clear()
+
+    def reset(self):
+        """Forget everything but the counters (as at start)."""
+        self._reset_state()
+
+    @property
+    def initialized(self):
+        return self._initialized
+
+    @property
+    def newest_ns(self):
+        return self._t[-1] if self._t else None
+
+    def current_state(self):
+        """Newest filter state (FilterState) or None before initialisation."""
+        return self._x[-1] if self._t and self._x[-1] is not None else None
+
+    def status(self):
+        """(IntegrityState, Level, message, published chainage 1σ in m or NaN)."""
+        state = self.current_state()
+        sigma = (math.sqrt(state.P[0, 0] + self._systematic_var) if state is not None
+                 else float('nan'))
+        if not self.config.use_kalman:
+            sigma = 0.0
+        st, level, msg = self.monitor.status(self.newest_ns, self._initialized,
+                                             self._has_fix, sigma)
+        return st, level, msg, sigma
+
+    # ----------------------------------------------------------------- IMU
+    def add_imu(self, sample):
+        """Add one ``imu/data`` sample; returns a :class:`StepReport`."""
+        report = StepReport()
+        cfg = self.config
+        t = int(sample.stamp_ns)
+        if not sample.is_finite():
+            self.monitor.counters.imu_rejected += 1
+            report.events.append(Event(Level.WARN, 'imu_nonfinite',
+                                       'IMU sample with NaN/inf or zero quaternion skipped'))
+            return report
+        if self._newest_imu_ns is not None and t <= self._newest_imu_ns:
+            if self._newest_imu_ns - t > cfg.backward_reset_s * NS_PER_S:
+                self._time_reset(report, t, self._newest_imu_ns)
+            else:
+                self.monitor.counters.imu_rejected += 1
+                report.events.append(Event(Level.WARN, 'imu_out_of_order',
+                                           f'IMU sample {(self._newest_imu_ns - t) * 1e-6:.3f} '
+                                           'ms older than the newest skipped'))
+                return report
+        if sample.quat_xyzw is not None:
+            self._att.push(t * 1e-9, sample.quat_xyzw, sample.attitude_cov_rad2)
+        accel = self._along_track_accel(sample)
+        gap = (self._newest_imu_ns is not None
+               and (t - self._newest_imu_ns) > cfg.imu_max_gap_s * NS_PER_S)
+        if gap:
+            report.events.append(Event(Level.WARN, 'imu_gap',
+                                       f'IMU gap of {(t - self._newest_imu_ns) * 1e-9:.3f} s: '
+                                       'acceleration unknown over it'))
+        first = self._newest_imu_ns is None
+        a_in = float('nan') if (gap or first) else 0.5 * (self._last_accel + accel)
+        self._last_accel = accel
+        self._newest_imu_ns = t
+        if self._t and t <= self._t[-1]:
+            # Fixes were extrapolated past this sample while the IMU lagged: put it where
+            # it belongs and replay the later steps.
+            i = self._insert_step(t)
+            self._a[i] = a_in
+            self._gyro[i] = np.asarray(sample.gyro_rps, dtype=float)
+            if i > 0 and self._x[i - 1] is not None:
+                self._x[i] = self._propagate(self._x[i - 1], t - self._t[i - 1], a_in)
+                for upd in self._upd[i]:
+                    self._x[i] = self._apply_update(self._x[i], upd)
+                self._replay_from(i)
+        else:
+            self._append_step(t, a_in, sample.gyro_rps)
+        standing = self._standstill.push(t, sample.gyro_rps, sample.accel_mps2)
+        if standing and cfg.standstill.enabled:
+            self._zero_velocity(t)
+        self._process_pending(report)
+        self._emit(report)
+        return report
+
+    def _along_track_accel(self, sample):
+        """Measured along-track acceleration of ``base_link`` (bias included), m/s².
+
+        The specific force rotated into ``map`` plus gravity, x component (straight
+        track). Gravity has no x component, so ``a_x = (R·f)_x``: the attitude matters
+        because a pitch of θ leaks g·θ of gravity into the body x axis.
+        """
+        cfg = self.config
+        f = sample.accel_mps2
+        r = np.asarray(cfg.imu_lever_arm_m, dtype=float)
+        if np.any(r):
+            w = sample.gyro_rps
+            if self._prev_gyro is not None and self._newest_imu_ns is not None:
+                dt = (sample.stamp_ns - self._newest_imu_ns) * 1e-9
+                alpha = (w - self._prev_gyro) / dt if dt > 0.0 else np.zeros(3)
+            else:
+                alpha = np.zeros(3)
+            # Rigid body: f_imu = f_base + α×r + ω×(ω×r).
+            f = f - np.cross(alpha, r) - np.cross(w, np.cross(w, r))
+        self._prev_gyro = sample.gyro_rps
+        if cfg.use_imu_attitude and sample.quat_xyzw is not None:
+            x, y, z, w = sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
+            # First row of the rotation matrix: only the along-track component is needed.
+            return float((1.0 - 2.0 * (y * y + z * z)) * f[0] + 2.0 * (x * y - z * w) * f[1]
+                         + 2.0 * (x * z + y * w) * f[2])
+        return float(f[0])
+
+    def _zero_velocity(self, t):
+        """Zero-velocity update at the newest step if the filter's speed allows it."""
+        cfg = self.config.standstill
+        state = self._x[-1]
+        if state is None or not self.config.use_kalman:
+            return
+        period_ns = cfg.update_period_s * NS_PER_S
+        if self._last_zupt_ns is not None and t - self._last_zupt_ns < period_ns:
+            return
+        if not StandstillDetector.speed_allows_update(state.x[1], state.P[1, 1], cfg):
+            return
+        self._last_zupt_ns = t
+        self._add_update(len(self._t) - 1, ('z', H_SPEED, 0.0, cfg.speed_sigma_mps ** 2))
+
+    # ----------------------------------------------------------------- frames
+    def add_frame(self, stamp_ns, observations):
+        """Add the lamp observations of one stereo frame; returns a :class:`StepReport`."""
+        report = StepReport()
+        cfg = self.config
+        stamp_ns = int(stamp_ns)
+        if (self._newest_frame_ns is not None
+                and self._newest_frame_ns - stamp_ns > cfg.backward_reset_s * NS_PER_S
+                and (self._newest_imu_ns is None
+                     or self._newest_imu_ns - stamp_ns > cfg.backward_reset_s * NS_PER_S)):
+            self._time_reset(report, stamp_ns, self._newest_frame_ns)
+        if self._newest_frame_ns is None:
+            self._first_frame_ns = stamp_ns
+        self._newest_frame_ns = (stamp_ns if self._newest_frame_ns is None
+                                 else max(self._newest_frame_ns, stamp_ns))
+        for obs in observations:
+            if not obs.is_finite():
+                self.monitor.counters.bad_observations += 1
+                report.fixes.append(FixRecord(stamp_ns, obs.uid, None, 'bad_observation'))
+                report.events.append(Event(Level.WARN, 'bad_observation',
+                                           'lamp record with NaN/inf centre or sigma skipped'))
+                continue
+            t_m = measurement_time_ns(obs, cfg.geometry, cfg.use_exposure_stamping)
+            self._seq += 1
+            bisect.insort(self._pending, (t_m, self._seq, obs))
+        self._process_pending(report)
+        self._emit(report)
+        return report
+
+    def _imu_absent(self):
+        """True when the IMU lags the newest frame by more than ``imu_timeout_s``."""
+        if self._newest_frame_ns is None:
+            return False
+        reference = (self._newest_imu_ns if self._newest_imu_ns is not None
+                     else self._first_frame_ns)
+        return self._newest_frame_ns - reference > self.config.imu_timeout_s * NS_PER_S
+
+    def _process_pending(self, report):
+        while self._pending:
+            t_m, _, obs = self._pending[0]
+            imu = self._newest_imu_ns
+            if imu is not None and t_m <= imu:
+                pass
+            elif self._imu_absent():
+                if self._t and t_m > self._t[-1]:
+                    self._append_step(t_m, float('nan'), np.zeros(3))
+            else:
+                break
+            self._pending.pop(0)
+            self._handle_observation(t_m, obs, report)
+
+    # ----------------------------------------------------------------- steps
+    def _append_step(self, t, a_in, gyro):
+        """Append a step at the newest end and propagate the state to it."""
+        x = None
+        if self._t and self._x[-1] is not None:
+            x = self._propagate(self._x[-1], t - self._t[-1], a_in)
+        elif not self._t and self.config.use_kalman and math.isfinite(
+                self.config.initial_chainage_m):
+            x = self._prior_state(t)
+        self._t.append(t)
+        self._a.append(a_in)
+        self._x.append(x)
+        self._gyro.append(np.asarray(gyro, dtype=float))
+        self._upd.append([])
+        if self._next_grid_ns is None:
+            self._next_grid_ns = (t // self._period_ns + 1) * self._period_ns
+        self._prune()
+
+    def _prior_state(self, t):
+        """Initial state from the configured prior (the first step after start/reset)."""
+        cfg = self.config
+        speed = cfg.initial_speed_mps
+        state = initial_state(cfg.initial_chainage_m, cfg.initial_chainage_sigma_m ** 2,
+                              cfg.kalman, speed_mps=speed if math.isfinite(speed) else 0.0,
+                              speed_var_m2s2=0.01 if math.isfinite(speed) else None)
+        self._initialized = True
+        self._init_ns = t
+        self._publishing = True         # a prior is published at once, whatever its σ
+        return state
+
+    def _propagate(self, state, dt_ns, a_in):
+        cfg = self.config.kalman
+        dt = dt_ns * 1e-9
+        if math.isnan(a_in):
+            return predict(state, dt, float(state.x[2]), cfg, cfg.unknown_accel_sigma_mps2 ** 2)
+        return predict(state, dt, a_in, cfg)
+
+    def _prune(self):
+        cutoff = self._t[-1] - int(self.config.history_s * NS_PER_S)
+        k = bisect.bisect_right(self._t, cutoff) - 1
+        if k > 64:
+            del self._t[:k], self._a[:k], self._x[:k], self._gyro[:k], self._upd[:k]
+
+    def _index_at_or_before(self, t):
+        return bisect.bisect_right(self._t, t) - 1
+
+    def _state_at(self, t):
+        """Filter state at ``t`` (not stored) from the step at or before it, or None."""
+        i = self._index_at_or_before(t)
+        if i < 0 or self._x[i] is None:
+            return None
+        if self._t[i] == t:
+            return self._x[i]
+        a_in = self._a[i + 1] if i + 1 < len(self._t) else self._a[i]
+        return self._propagate(self._x[i], t - self._t[i], a_in)
+
+    def _insert_step(self, t):
+        """Index of a step at ``t``, inserting one (state propagated) if needed."""
+        i = self._index_at_or_before(t)
+        if i >= 0 and self._t[i] == t:
+            return i
+        if i + 1 < len(self._t):
+            a_in = self._a[i + 1]
+        else:
+            a_in = self._a[i] if i >= 0 else float('nan')
+        state = self._state_at(t) if i >= 0 else None
+        gyro = self._gyro[i] if i >= 0 else (self._gyro[0] if self._gyro else np.zeros(3))
+        self._t.insert(i + 1, t)
+        self._a.insert(i + 1, a_in)
+        self._x.insert(i + 1, state)
+        self._gyro.insert(i + 1, gyro)
+        self._upd.insert(i + 1, [])
+        if self._next_grid_ns is None:
+            self._next_grid_ns = (t // self._period_ns + 1) * self._period_ns
+        return i + 1
+
+    @staticmethod
+    def _apply_update(state, upd):
+        if upd[0] == 'set':
+            return upd[1].copy()
+        _, h, z, r = upd
+        return update(state, z, r, h)
+
+    def _add_update(self, i, upd):
+        """Apply ``upd`` at step ``i``, remember it, and replay the later steps."""
+        self._upd[i].append(upd)
+        self._x[i] = self._apply_update(self._x[i], upd)
+        self._replay_from(i)
+
+    def _replay_from(self, i):
+        """Re-propagate every step after ``i`` with its stored input and updates."""
+        for j in range(i + 1, len(self._t)):
+            prev = self._x[j - 1]
+            x = None if prev is None else self._propagate(prev, self._t[j] - self._t[j - 1],
+                                                          self._a[j])
+            for upd in self._upd[j]:
+                x = self._apply_update(x, upd)
+            self._x[j] = x
+
+    # ----------------------------------------------------------------- attitude
+    def _attitude(self, t):
+        """(R_map_base (3, 3), covariance (3, 3)) to use at ``t``."""
+        cfg = self.config
+        floor = np.square(cfg.attitude_sigma_floor_rad)
+        if cfg.use_imu_attitude:
+            q = self._att.at(t * 1e-9)
+            if q is not None:
+                cov = self._att.covariance_at(t * 1e-9)
+                if cov is None or not np.all(np.isfinite(cov)):
+                    cov = np.diag(floor)
+                else:
+                    cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
+                return quat_to_matrix(q), cov
+        return np.eye(3), np.diag(np.square(cfg.attitude_sigma_unknown_rad))
+
+    # ----------------------------------------------------------------- fixes
+    def _fix_for(self, prep, lamp):
+        """(FixResult, geometry_ok) of a prepared observation explained by ``lamp``."""
+        cfg = self.config
+        fix = compute_fix(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R, prep.cov_att,
+                          cfg.geometry, cfg.fix)
+        geometry_ok = not (fix.chi2_geometry > cfg.integrity.geometry_gate_chi2)
+        return fix, geometry_ok
+
+    def _handle_observation(self, t_m, obs, report):
+        cfg = self.config
+        mon = self.monitor
+        if self._t and t_m < self._t[-1] - int(cfg.history_s * NS_PER_S):
+            report.fixes.append(FixRecord(t_m, obs.uid, None, 'too_old'))
+            report.events.append(Event(Level.WARN, 'fix_too_old',
+                                       'lamp record older than the history window dropped'))
+            return
+        p_cam, cov_cam = triangulate(obs, cfg.geometry, cfg.fix.min_disparity_px)
+        if p_cam is None:
+            mon.counters.bad_observations += 1
+            report.fixes.append(FixRecord(t_m, obs.uid, None, 'bad_observation',
+                                          detail='disparity too small'))
+            report.events.append(Event(Level.WARN, 'bad_observation',
+                                       f'lamp record with disparity {obs.disparity_px:.2f} px '
+                                       'skipped'))
+            return
+        R, cov_att = self._attitude(t_m)
+        prep = _Prepared(t_m, obs, p_cam, cov_cam, R, cov_att)
+        lamp = None
+        if obs.uid is not None:
+            lamp = self.lamp_map.by_uid(obs.uid)
+            if lamp is None:
+                mon.on_unknown_uid(t_m, obs.uid)
+                report.fixes.append(FixRecord(t_m, obs.uid, None, 'unknown_uid'))
+                report.events.append(Event(Level.WARN, 'unknown_uid',
+                                           f'UID {int(obs.uid):#06x} is not in the lamp map: '
+                                           'record skipped'))
+                return
+        if not cfg.use_kalman:
+            self._raw_fix(prep, lamp, report)
+        elif not self._initialized:
+            self._try_initialise(prep, lamp, report)
+        else:
+            self._fuse(prep, lamp, report)
+
+    def _fuse(self, prep, lamp, report):
+        """Gate one observation against the filter and apply it (initialised filter)."""
+        mon = self.monitor
+        t_m, obs = prep.t_ns, prep.obs
+        state = self._state_at(t_m)
+        if state is None:
+            report.fixes.append(FixRecord(t_m, obs.uid, None, 'too_old',
+                                          detail='older than the initialisation'))
+            return
+        confirmed = lamp is not None
+        if not confirmed:
+            lamp, fix, d2, why = self._associate(state, prep)
+            if lamp is None:
+                mon.counters.unconfirmed_skipped += 1
+                report.fixes.append(FixRecord(t_m, None, None, 'unconfirmed_skipped', detail=why))
+                return
+        else:
+            fix, geometry_ok = self._fix_for(prep, lamp)
+            if not geometry_ok:
+                self._geometry_rejected(prep, lamp, fix, report)
+                return
+            y, S = innovation(state, fix.chainage_m, fix.var_m2)
+            d2 = mahalanobis2(y, S)
+            if d2 > self.config.integrity.gate_chi2:
+                decision = mon.on_contradiction(Contradiction(t_m, int(obs.uid), y, S))
+                if decision is not None:
+                    self._reinitialise(t_m, fix, decision, report)
+                    report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'reinitialised',
+                                                  fix.chainage_m, fix.var_m2, d2))
+                    return
+                report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'rejected_gate',
+                                              fix.chainage_m, fix.var_m2, d2))
+                report.events.append(Event(Level.WARN, 'fix_contradiction',
+                                           f'lamp {lamp.uid:#06x} contradicts the state by '
+                                           f'{y:+.2f} m (d2 {d2:.0f}): skipped, moved or spoofed '
+                                           'lamp; fix rejected'))
+                return
+        self._apply_fix(t_m, fix)
+        mon.on_accepted(t_m, confirmed)
+        report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
+                                      fix.var_m2, d2))
+
+    def _geometry_rejected(self, prep, lamp, fix, report):
+        self.monitor.on_geometry_rejected(prep.t_ns, prep.obs.uid, fix.chi2_geometry)
+        report.fixes.append(FixRecord(prep.t_ns, prep.obs.uid, lamp.uid, 'rejected_geometry',
+                                      fix.chainage_m, fix.var_m2))
+        report.events.append(Event(Level.WARN, 'fix_geometry',
+                                   f'lamp {lamp.uid:#06x}: range and direction disagree '
+                                   f'(chi2 {fix.chi2_geometry:.1f}): fix rejected'))
+
+    def _associate(self, state, prep):
+        """The map lamp an unconfirmed observation must be, or None (with why)."""
+        cfg = self.config
+        icfg = cfg.integrity
+        if state.P[0, 0] > icfg.association_max_sigma_m ** 2:
+            return None, None, float('nan'), 'state too uncertain to predict the lamp'
+        g = cfg.geometry
+        lamp_from_base = prep.R @ (g.R_base_cam @ prep.p_cam + g.t_base_cam)
+        expected_x = state.x[0] + lamp_from_base[0]
+        # Wide enough that a second lamp inside the gate would be seen (and refused).
+        window = icfg.association_window_m + math.sqrt(icfg.gate_chi2 * state.P[0, 0])
+        candidates, fixes = [], {}
+        for lamp in self.lamp_map.near(expected_x, window, window):
+            fix, geometry_ok = self._fix_for(prep, lamp)
+            y, S = innovation(state, fix.chainage_m, fix.var_m2)
+            d2 = mahalanobis2(y, S) if geometry_ok else math.inf
+            candidates.append((lamp, d2))
+            fixes[lamp.uid] = (fix, d2)
+        lamp, why = select_association(candidates, icfg.gate_chi2)
+        if lamp is None:
+            return None, None, float('nan'), why
+        fix, d2 = fixes[lamp.uid]
+        return lamp, fix, d2, why
+
+    def _apply_fix(self, t_m, fix):
+        i = self._insert_step(t_m)
+        self._add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
+        self._systematic_var = fix.var_systematic_m2
+        self._has_fix = True
+        self._publish_pending = self.config.publish_on_fix
+
+    def _try_initialise(self, prep, lamp, report):
+        """Cold start: wait for a confirmed lamp, then start from its recent track."""
+        cfg = self.config
+        t_m, obs = prep.t_ns, prep.obs
+        horizon = t_m - int(cfg.init_lookback_s * NS_PER_S)
+        self._preinit = [p for p in self._preinit if p.t_ns >= horizon]
+        if lamp is None:
+            self._preinit.append(prep)
+            self.monitor.counters.unconfirmed_skipped += 1
+            report.fixes.append(FixRecord(t_m, None, None, 'waiting_for_uid'))
+            return
+        fix, geometry_ok = self._fix_for(prep, lamp)
+        if not geometry_ok:
+            self._geometry_rejected(prep, lamp, fix, report)
+            return
+        chain = self._lookback_chain(prep, lamp, fix)
+        self._preinit = []
+        t0, fix0 = chain[0]
+        i = self._insert_step(t0)
+        self._add_update(i, ('set', initial_state(fix0.chainage_m, fix0.var_m2, cfg.kalman)))
+        self._initialized = True
+        self._has_fix = True
+        # Published from the confirming frame on: the filtered states inside the lookback
+        # span saw only part of the lamp's track.
+        self._init_ns = t_m
+        self._systematic_var = fix0.var_systematic_m2
+        self._publish_pending = True
+        for t_k, fix_k in chain[1:]:
+            state = self._state_at(t_k)
+            y, S = innovation(state, fix_k.chainage_m, fix_k.var_m2)
+            if mahalanobis2(y, S) <= cfg.integrity.gate_chi2:
+                self._apply_fix(t_k, fix_k)
+        self.monitor.on_accepted(t_m, True)
+        report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'initialised', fix.chainage_m,
+                                      fix.var_m2, detail=f'{len(chain) - 1} earlier frames'))
+        report.events.append(Event(Level.OK, 'initialised',
+                                   f'initialised at chainage {fix.chainage_m:.3f} m from lamp '
+                                   f'{lamp.uid:#06x} and {len(chain) - 1} earlier frames of it'))
+
+    def _lookback_chain(self, prep, lamp, fix):
+        """[(t_ns, FixResult)] of lamp ``lamp``'s recent unconfirmed frames, oldest first.
+
+        Walking back from the confirmed frame, an unconfirmed observation joins the track
+        when, explained as ``lamp``, it lies within ``max_speed_mps`` of the newer track
+        point, and explained as any other map lamp it would not.
+        """
+        cfg = self.config
+        chain = [(prep.t_ns, fix)]
+        anchor_t, anchor = prep.t_ns, fix
+        others = [other.position_m[0] - lamp.position_m[0]
+                  for other in self.lamp_map.near(lamp.position_m[0], 60.0, 60.0)
+                  if other.uid != lamp.uid]
+        for old in sorted(self._preinit, key=lambda p: -p.t_ns):
+            if old.t_ns >= anchor_t:
+                continue
+            f, geometry_ok = self._fix_for(old, lamp)
+            if not geometry_ok:
+                continue
+            reach = (cfg.max_speed_mps * (anchor_t - old.t_ns) * 1e-9
+                     + 4.0 * math.sqrt(f.var_m2 + anchor.var_m2))
+            if abs(f.chainage_m - anchor.chainage_m) > reach:
+                continue
+            # Explained as another lamp (dx further along), the fix would move by dx.
+            if any(abs(f.chainage_m + dx - anchor.chainage_m) <= reach for dx in others):
+                continue
+            chain.append((old.t_ns, f))
+            anchor_t, anchor = old.t_ns, f
+        return chain[::-1]
+
+    def _reinitialise(self, t_m, fix, decision, report):
+        """Restart the chainage at ``fix``; after a long contradiction also the speed."""
+        icfg = self.config.integrity
+        i = self._insert_step(t_m)
+        old = self._x[i]
+        P = np.zeros((3, 3))
+        P[0, 0] = fix.var_m2
+        if decision == 'offset':
+            P[1:, 1:] = old.P[1:, 1:]
+        else:
+            P[1, 1] = max(old.P[1, 1], icfg.reinit_speed_sigma_mps ** 2)
+            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
+        x = old.x.copy()
+        x[0] = fix.chainage_m
+        self._add_update(i, ('set', FilterState(x, P)))
+        self._systematic_var = fix.var_systematic_m2
+        self._publish_pending = True
+        self.monitor.on_reinitialised()
+        self.monitor.on_accepted(t_m, True)
+        why = ('two confirmed lamps contradict the state by the same offset'
+               if decision == 'offset' else
+               f'confirmed lamps contradicted the state for {icfg.reinit_after_s:.1f} s')
+        report.events.append(Event(Level.ERROR, 'reinitialised',
+                                   f'{why}: re-initialised by {fix.chainage_m - old.x[0]:+.2f} m'))
+
+    def _raw_fix(self, prep, lamp, report):
+        """use_kalman off: every confirmed, geometry-consistent fix is a pose."""
+        t_m, obs = prep.t_ns, prep.obs
+        if lamp is None:
+            self.monitor.counters.unconfirmed_skipped += 1
+            report.fixes.append(FixRecord(t_m, None, None, 'unconfirmed_skipped',
+                                          detail='no filter state to predict the lamp'))
+            return
+        fix, geometry_ok = self._fix_for(prep, lamp)
+        if not geometry_ok:
+            self._geometry_rejected(prep, lamp, fix, report)
+            return
+        self._initialized = True
+        self._has_fix = True
+        self.monitor.on_accepted(t_m, True)
+        report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
+                                      fix.var_m2))
+        if self._last_pub_ns is not None and t_m <= self._last_pub_ns:
+            return
+        cov = self._position_cov(fix.var_m2)
+        q, att_cov = self._orientation(t_m)
+        report.poses.append(PoseEstimate(t_m, fix.position_m.copy(), cov, float('nan'),
+                                         float('nan'), q, att_cov, self._gyro_at(t_m), 'raw'))
+        self._last_pub_ns = t_m
+
+    # ----------------------------------------------------------------- output
+    def _position_cov(self, chainage_var):
+        sy, sz = self.config.fix.track_sigma_yz_m
+        return np.diag([chainage_var, sy * sy, sz * sz])
+
+    def _orientation(self, t):
+        q = self._att.at(t * 1e-9)
+        if q is None:
+            return (np.array([0.0, 0.0, 0.0, 1.0]),
+                    np.diag(np.square(self.config.attitude_sigma_unknown_rad)))
+        cov = self._att.covariance_at(t * 1e-9)
+        if cov is None or not np.all(np.isfinite(cov)):
+            cov = np.diag(np.square(self.config.attitude_sigma_floor_rad))
+        return q, cov
+
+    def _gyro_at(self, t):
+        i = self._index_at_or_before(t)
+        return self._gyro[i].copy() if i >= 0 else np.zeros(3)
+
+    def _pose(self, t, kind):
+        state = self._state_at(t)
+        cov = self._position_cov(state.P[0, 0] + self._systematic_var)
+        q, att_cov = self._orientation(t)
+        y0, z0 = self.config.fix.track_offset_yz_m
+        return PoseEstimate(t, np.array([state.x[0], y0, z0]), cov, float(state.x[1]),
+                            float(state.P[1, 1]), q, att_cov, self._gyro_at(t), kind)
+
+    def _may_publish(self, t):
+        """After a cold start, hold the output until the chainage 1σ is below
+        ``max_sigma_m`` (a single-frame start does not know the speed yet); from then on
+        every pose is published, with its covariance and the integrity state saying how
+        good it is."""
+        if not self._publishing:
+            state = self._state_at(t)
+            sigma2 = state.P[0, 0] + self._systematic_var
+            self._publishing = sigma2 <= self.config.integrity.max_sigma_m ** 2
+        return self._publishing
+
+    def _emit(self, report):
+        """Grid poses up to the newest step, then the post-fix pose if one is due."""
+        if not self._t or not self.config.use_kalman:
+            return
+        newest = self._t[-1]
+        if self._next_grid_ns is not None and newest - self._next_grid_ns > NS_PER_S:
+            # A jump forward: do not flood the output with a second of grid poses.
+            self._next_grid_ns = (newest // self._period_ns) * self._period_ns
+        while self._next_grid_ns is not None and self._next_grid_ns <= newest:
+            g = self._next_grid_ns
+            self._next_grid_ns += self._period_ns
+            if (self._initialized and g >= self._init_ns
+                    and (self._last_pub_ns is None or g > self._last_pub_ns)
+                    and self._may_publish(g)):
+                report.poses.append(self._pose(g, 'grid'))
+                self._last_pub_ns = g
+        if (self._publish_pending and self._initialized
+                and (self._last_pub_ns is None or newest > self._last_pub_ns)
+                and self._may_publish(newest)):
+            report.poses.append(self._pose(newest, 'fix'))
+            self._last_pub_ns = newest
+            self._publish_pending = False
+
+    def _time_reset(self, report, t, newest):
+        self.monitor.counters.time_resets += 1
+        report.events.append(Event(Level.WARN, 'time_reset',
+                                   f'time jumped back by {(newest - t) * 1e-9:.3f} s: '
+                                   'localizer reset'))
+        self._reset_state()

@@ -1,0 +1,452 @@
+"""``train_localizer_node``: train position from lamp fixes fused with the IMU.
+
+Subscribes (relative names):
+
+* ``spots/pairs`` (sensor_msgs/PointCloud2; reliable, depth 10): sub-pixel spot pairs
+  from spot_locator, one point per lamp, header = image header;
+* ``vlc/lamps`` (sensor_msgs/PointCloud2; reliable, depth 10): lamp UIDs from
+  vlc_decoder, same stamps; joined with the spot pairs by stamp
+  (:mod:`train_localizer.core.join`);
+* ``imu/data`` (sensor_msgs/Imu; ``qos_profile_sensor_data``): compensated attitude,
+  rate and specific force from imu_compensator;
+* ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
+  reliable, transient local, depth 1): rectified intrinsics and baseline.
+
+Publishes, all stamped with the instant they describe (reliable, depth 10):
+
+* ``train/pose`` (geometry_msgs/PoseStamped): ``base_link`` in ``map``, at
+  ``publish_rate_hz`` on the sensor-time grid and right after every fix;
+* ``train/pose_with_covariance`` (geometry_msgs/PoseWithCovarianceStamped);
+* ``train/odometry`` (nav_msgs/Odometry, twist in ``base_link`` with the speed);
+* ``diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period_s``
+  (steady clock): integrity state, counters, processing time per fix.
+
+Everything but message conversion lives in :class:`~train_localizer.core.localizer.Localizer`;
+bad input is logged (throttled per kind) and skipped. Parameters:
+``config/train_localizer_node.yaml``.
+"""
+from collections import deque
+import math
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+import numpy as np
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
+
+from vlc_stereo_camera.core.camera import StereoRig
+from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+
+from . import conversions
+from .core.fix import FixConfig, RigGeometry
+from .core.integrity import IntegrityConfig, Level
+from .core.join import FrameJoiner, JoinConfig
+from .core.kalman import KalmanConfig
+from .core.localizer import Localizer, LocalizerConfig
+from .core.standstill import StandstillConfig
+
+_RIG = StereoRig()
+_DEG = math.pi / 180.0
+SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
+
+
+def _desc(text, lo=None, hi=None, integer=False):
+    d = ParameterDescriptor(description=text)
+    if lo is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+# name, default, descriptor — documented key by key in config/train_localizer_node.yaml
+PARAMETERS = (
+    ('map_frame_id', 'map', _desc('Frame of the published poses.')),
+    ('base_frame_id', 'base_link', _desc('Child frame of the odometry (the train head).')),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
+    ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
+    ('publish_on_fix', True, _desc('Also publish right after each fix (lower latency).')),
+    ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
+    ('warn_throttle_s', 2.0, _desc('Minimum interval between two warnings of one kind, s.',
+                                   0.0, 600.0)),
+    ('use_range_constraint', True, _desc('Constrained GLS fix (track + stereo range); false = '
+                                         'paper eq. 13-14 fix.')),
+    ('use_imu_attitude', True, _desc('Use imu/data attitude; false = identity.')),
+    ('use_exposure_stamping', True, _desc('Stamp fixes at the spot exposure mid-time; false = '
+                                          'image stamp.')),
+    ('use_kalman', True, _desc('Kalman fusion with the IMU; false = raw single-frame fixes.')),
+    ('use_zero_velocity', True, _desc('Zero-velocity updates at standstill.')),
+    ('use_camera_info', True, _desc('Take intrinsics and baseline from camera_info.')),
+    ('fx', _RIG.intrinsics.fx, _desc('Rectified focal length x (until camera_info), px.',
+                                     1.0, 1e5)),
+    ('fy', _RIG.intrinsics.fy, _desc('Rectified focal length y, px.', 1.0, 1e5)),
+    ('cx', _RIG.intrinsics.cx, _desc('Principal point x, px.', -1e5, 1e5)),
+    ('cy', _RIG.intrinsics.cy, _desc('Principal point y, px.', -1e5, 1e5)),
+    ('baseline_m', _RIG.baseline_m, _desc('Stereo baseline, m.', 1e-3, 10.0)),
+    ('mount_x_m', float(_RIG.mount_xyz_m[0]), _desc('Left optical centre x in base_link, m.',
+                                                    -20.0, 20.0)),
+    ('mount_y_m', float(_RIG.mount_xyz_m[1]), _desc('Left optical centre y in base_link, m.',
+                                                    -5.0, 5.0)),
+    ('mount_z_m', float(_RIG.mount_xyz_m[2]), _desc('Left optical centre z in base_link, m.',
+                                                    -5.0, 10.0)),
+    ('placement_angle_deg', _RIG.placement_angle_deg,
+     _desc('Optical axis turned from the wall normal toward +x (paper eq. 16), deg.',
+           -90.0, 90.0)),
+    ('pitch_deg', _RIG.pitch_deg, _desc('Optical axis tilt below horizontal, deg.',
+                                        -90.0, 90.0)),
+    ('row_time_s', 30e-6, _desc('Rolling-shutter row time, s.', 0.0, 1e-2)),
+    ('exposure_s', 50e-6, _desc('Row exposure time, s.', 0.0, 0.1)),
+    ('track_sigma_y_m', 0.004, _desc('1-sigma lateral offset of base_link from the track, m.',
+                                     1e-6, 1.0)),
+    ('track_sigma_z_m', 0.004, _desc('1-sigma vertical offset of base_link from the track, m.',
+                                     1e-6, 1.0)),
+    ('track_offset_y_m', 0.0, _desc('Nominal lateral position of base_link in map, m.',
+                                    -10.0, 10.0)),
+    ('track_offset_z_m', 0.0, _desc('Nominal height of base_link in map, m.', -10.0, 10.0)),
+    ('lamp_position_sigma_m', 0.005, _desc('1-sigma survey error per lamp coordinate, m.',
+                                           0.0, 1.0)),
+    ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
+    ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
+                                             'weights (correlated error).', 1.0, 1000.0)),
+    ('attitude_sigma_floor_deg', [0.05, 0.05, 0.1],
+     _desc('Smallest attitude 1-sigma about map x, y, z assumed for imu/data, deg.')),
+    ('attitude_sigma_unknown_deg', [0.5, 0.5, 5.0],
+     _desc('Attitude 1-sigma without an attitude (use_imu_attitude false), deg.')),
+    ('imu_lever_arm_m', [0.0, 0.0, 0.0], _desc('IMU position in base_link, m.')),
+    ('accel_noise_density_mps2_rthz', 0.01, _desc('Along-track acceleration white noise, '
+                                                  'm/s^2/sqrt(Hz).', 0.0, 10.0)),
+    ('bias_random_walk_mps3_rthz', 2e-3, _desc('Acceleration bias random walk, '
+                                               'm/s^3/sqrt(Hz).', 0.0, 10.0)),
+    ('initial_bias_sigma_mps2', 0.2, _desc('1-sigma acceleration bias at start, m/s^2.',
+                                           0.0, 10.0)),
+    ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at a cold start, m/s.', 0.0, 200.0)),
+    ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
+                                            0.0, 20.0)),
+    ('gate_chi2', 16.0, _desc('Mahalanobis gate of a fix (chi2, 1 dof).', 1.0, 1e4)),
+    ('geometry_gate_chi2', 18.4, _desc('Range/direction residual gate (chi2, 2 dof).',
+                                       1.0, 1e6)),
+    ('association_max_sigma_m', 1.5, _desc('Unconfirmed lamps used only below this chainage '
+                                           '1-sigma, m.', 0.0, 100.0)),
+    ('association_window_m', 4.0, _desc('Association candidate window, m.', 0.0, 100.0)),
+    ('reinit_agreement_chi2', 16.0, _desc('Two contradicting lamps agree below this chi2.',
+                                          1.0, 1e4)),
+    ('reinit_after_s', 2.0, _desc('Two lamps contradicting this long re-initialise, s.',
+                                  0.0, 600.0)),
+    ('reinit_speed_sigma_mps', 2.0, _desc('Speed 1-sigma after such a re-initialisation, m/s.',
+                                          0.0, 100.0)),
+    ('contradiction_memory_s', 60.0, _desc('Memory of contradicting lamps, s.', 0.0, 3600.0)),
+    ('coast_warn_s', 1.0, _desc('Warn after this long without an accepted fix, s.',
+                                0.0, 3600.0)),
+    ('max_sigma_m', 0.5, _desc('Error above this published chainage 1-sigma, m.', 0.0, 1e4)),
+    ('report_hold_s', 5.0, _desc('A rejection stays in the diagnostics for this long, s.',
+                                 0.0, 3600.0)),
+    ('standstill_window_s', 0.25, _desc('Standstill detector window, s.', 0.01, 10.0)),
+    ('standstill_gyro_std_max_rps', 0.005, _desc('Standstill: max angular-rate std, rad/s.',
+                                                 0.0, 10.0)),
+    ('standstill_accel_std_max_mps2', 0.05, _desc('Standstill: max specific-force std, m/s^2.',
+                                                  0.0, 100.0)),
+    ('zero_velocity_max_speed_mps', 0.3, _desc('Zero-velocity update only below this speed '
+                                               '(+2 sigma), m/s.', 0.0, 10.0)),
+    ('zero_velocity_sigma_mps', 0.01, _desc('1-sigma of a zero-velocity update, m/s.',
+                                            1e-6, 10.0)),
+    ('history_s', 1.0, _desc('How far back a fix may be applied, s.', 0.05, 60.0)),
+    ('imu_timeout_s', 0.2, _desc('Fixes stop waiting for an IMU lagging the frames by more '
+                                 'than this, s.', 0.001, 60.0)),
+    ('imu_max_gap_s', 0.05, _desc('Longer IMU intervals are gaps (unknown acceleration), s.',
+                                  1e-4, 60.0)),
+    ('backward_reset_s', 1.0, _desc('A stamp this much older than the newest resets, s.',
+                                    1e-3, 1e6)),
+    ('max_speed_mps', 40.0, _desc('Highest possible train speed (cold start), m/s.',
+                                  0.1, 200.0)),
+    ('init_lookback_s', 0.5, _desc('Unconfirmed observations kept for the cold start, s.',
+                                   0.01, 10.0)),
+    ('use_initial_prior', False, _desc('Start from initial_chainage_m (publish at once).')),
+    ('initial_chainage_m', 0.0, _desc('Prior chainage of base_link, m.', -1e7, 1e7)),
+    ('initial_chainage_sigma_m', 1.0, _desc('1-sigma of the prior chainage, m.', 1e-6, 1e6)),
+    ('initial_speed_known', False, _desc('The prior includes the speed initial_speed_mps.')),
+    ('initial_speed_mps', 0.0, _desc('Prior speed, m/s.', -200.0, 200.0)),
+    ('join_match_radius_px', 12.0, _desc('Max left-image distance lamp record - spot pair, px.',
+                                         0.0, 2000.0)),
+    ('join_timeout_s', 0.15, _desc('Longest wait for the other half of a frame, s.',
+                                   0.0, 10.0)),
+)
+
+
+class TrainLocalizerNode(Node):
+    """ROS wrapper of :class:`Localizer`; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('train_localizer', **kwargs)
+        for name, default, descriptor in PARAMETERS:
+            self.declare_parameter(name, default, descriptor)
+        p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
+        self.params = p
+        self.localizer_config = self._config(p)
+        path = resolve_lamp_map_path(p['lamp_map_path'])
+        self.lamp_map = LampMap.load(path)
+        self.localizer = Localizer(self.lamp_map, self.localizer_config)
+        self.joiner = FrameJoiner(JoinConfig(match_radius_px=p['join_match_radius_px'],
+                                             timeout_s=p['join_timeout_s']))
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._last_warn = {}
+        self._suppressed = {}
+        self._fix_ms = deque(maxlen=500)
+        self._latency_ms = deque(maxlen=500)
+        self._infos = [None, None]
+        self._intrinsics_source = 'parameters'
+        self._published = 0
+        self._last_pose = None
+
+        estimate_qos = 10
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_pose = self.create_publisher(PoseStamped, 'train/pose', estimate_qos)
+        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped,
+                                                  'train/pose_with_covariance', estimate_qos)
+        self.pub_odom = self.create_publisher(Odometry, 'train/odometry', estimate_qos)
+        self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.create_subscription(Imu, 'imu/data', self._on_imu, qos_profile_sensor_data)
+        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
+        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
+        for side, index in (('left', 0), ('right', 1)):
+            self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
+                                     lambda msg, i=index: self._on_camera_info(i, msg), latched)
+        self.create_timer(0.02, self._flush_joiner, clock=self._steady)
+        self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
+                          clock=self._steady)
+        self.get_logger().info(
+            f'lamp map {path} ({len(self.lamp_map)} lamps); range constraint '
+            f'{p["use_range_constraint"]}, IMU attitude {p["use_imu_attitude"]}, exposure '
+            f'stamping {p["use_exposure_stamping"]}, Kalman {p["use_kalman"]}')
+
+    # ------------------------------------------------------------------ config
+    @staticmethod
+    def _config(p):
+        geometry = RigGeometry.from_mount(
+            (p['mount_x_m'], p['mount_y_m'], p['mount_z_m']), p['placement_angle_deg'],
+            p['pitch_deg'], fx=p['fx'], fy=p['fy'], cx=p['cx'], cy=p['cy'],
+            baseline_m=p['baseline_m'], row_time_s=p['row_time_s'], exposure_s=p['exposure_s'])
+        fix = FixConfig(use_range_constraint=p['use_range_constraint'],
+                        track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
+                        track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
+                        lamp_position_sigma_m=p['lamp_position_sigma_m'],
+                        min_disparity_px=p['min_disparity_px'],
+                        attitude_weight_inflation=p['attitude_weight_inflation'])
+        kalman = KalmanConfig(accel_noise_density_mps2_rthz=p['accel_noise_density_mps2_rthz'],
+                              bias_random_walk_mps3_rthz=p['bias_random_walk_mps3_rthz'],
+                              initial_bias_sigma_mps2=p['initial_bias_sigma_mps2'],
+                              initial_speed_sigma_mps=p['initial_speed_sigma_mps'],
+                              unknown_accel_sigma_mps2=p['unknown_accel_sigma_mps2'])
+        integrity = IntegrityConfig(
+            gate_chi2=p['gate_chi2'], geometry_gate_chi2=p['geometry_gate_chi2'],
+            association_max_sigma_m=p['association_max_sigma_m'],
+            association_window_m=p['association_window_m'],
+            reinit_agreement_chi2=p['reinit_agreement_chi2'],
+            reinit_after_s=p['reinit_after_s'],
+            reinit_speed_sigma_mps=p['reinit_speed_sigma_mps'],
+            contradiction_memory_s=p['contradiction_memory_s'],
+            coast_warn_s=p['coast_warn_s'], max_sigma_m=p['max_sigma_m'],
+            report_hold_s=p['report_hold_s'])
+        standstill = StandstillConfig(
+            enabled=p['use_zero_velocity'], window_s=p['standstill_window_s'],
+            gyro_std_max_rps=p['standstill_gyro_std_max_rps'],
+            accel_std_max_mps2=p['standstill_accel_std_max_mps2'],
+            max_speed_mps=p['zero_velocity_max_speed_mps'],
+            speed_sigma_mps=p['zero_velocity_sigma_mps'])
+        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg', 'imu_lever_arm_m'):
+            if len(p[name]) != 3:
+                raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
+        return LocalizerConfig(
+            geometry=geometry, fix=fix, kalman=kalman, integrity=integrity,
+            standstill=standstill, use_imu_attitude=p['use_imu_attitude'],
+            use_exposure_stamping=p['use_exposure_stamping'], use_kalman=p['use_kalman'],
+            publish_rate_hz=p['publish_rate_hz'], publish_on_fix=p['publish_on_fix'],
+            history_s=p['history_s'], imu_timeout_s=p['imu_timeout_s'],
+            imu_max_gap_s=p['imu_max_gap_s'], backward_reset_s=p['backward_reset_s'],
+            attitude_sigma_floor_rad=tuple(v * _DEG for v in p['attitude_sigma_floor_deg']),
+            attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
+            imu_lever_arm_m=tuple(p['imu_lever_arm_m']),
+            initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
+            initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
+            initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,
+            max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'])
+
+    # ------------------------------------------------------------------ inputs
+    def _on_imu(self, msg):
+        report = self.localizer.add_imu(conversions.imu_from_msg(msg))
+        self._publish(report)
+
+    def _records(self, msg, topic, required=()):
+        try:
+            records = conversions.cloud_to_records(msg)
+            conversions.require_fields(records, required, topic)
+            return records
+        except ValueError as exc:
+            self._warn('bad_cloud', f'{topic} message skipped: {exc}')
+            return None
+
+    def _on_spots(self, msg):
+        records = self._records(msg, 'spots/pairs', SPOT_FIELDS)
+        if records is not None:
+            stamp = conversions.stamp_to_ns(msg.header.stamp)
+            self._process(self.joiner.add_spots(stamp, records, self._now_s()))
+
+    def _on_lamps(self, msg):
+        records = self._records(msg, 'vlc/lamps')
+        if records is not None:
+            stamp = conversions.stamp_to_ns(msg.header.stamp)
+            self._process(self.joiner.add_lamps(stamp, records, self._now_s()))
+
+    def _flush_joiner(self):
+        self._process(self.joiner.flush(self._now_s()))
+
+    def _on_camera_info(self, index, msg):
+        if not self.params['use_camera_info']:
+            return
+        self._infos[index] = msg
+        if self._infos[0] is None or self._infos[1] is None:
+            return
+        left, right = self._infos
+        try:
+            fx, fy, cx, cy, baseline = conversions.intrinsics_from_camera_info(left, right)
+        except ValueError as exc:
+            self._warn('camera_info', f'camera_info ignored: {exc}')
+            return
+        g = self.localizer.config.geometry
+        if (g.fx, g.fy, g.cx, g.cy, g.baseline_m) != (fx, fy, cx, cy, baseline):
+            g.fx, g.fy, g.cx, g.cy, g.baseline_m = fx, fy, cx, cy, baseline
+            self.get_logger().info(f'intrinsics from camera_info: fx {fx:.2f} fy {fy:.2f} '
+                                   f'cx {cx:.2f} cy {cy:.2f} px, baseline {baseline:.4f} m')
+        self._intrinsics_source = 'camera_info'
+
+    def _process(self, frames):
+        for stamp_ns, observations in frames:
+            start = time.perf_counter()
+            report = self.localizer.add_frame(stamp_ns, observations)
+            elapsed_ms = (time.perf_counter() - start) * 1e3
+            if report.fixes:
+                self._fix_ms.append(elapsed_ms / len(report.fixes))
+            self._publish(report)
+
+    # ------------------------------------------------------------------ outputs
+    def _publish(self, report):
+        for event in report.events:
+            self._log_event(event)
+        if not report.poses:
+            return
+        map_frame, base_frame = self.params['map_frame_id'], self.params['base_frame_id']
+        now_ns = self.get_clock().now().nanoseconds
+        used = [f.measurement_ns for f in report.fixes if f.status in ('accepted', 'initialised',
+                                                                       'reinitialised')]
+        for est in report.poses:
+            ps, pwc, odom = conversions.pose_messages(est, map_frame, base_frame)
+            self.pub_pose.publish(ps)
+            self.pub_pose_cov.publish(pwc)
+            self.pub_odom.publish(odom)
+            self._published += 1
+            self._last_pose = est
+        for t in used:
+            latency_ms = (now_ns - t) * 1e-6
+            # Only meaningful when the node clock and the sensor stamps share a time base
+            # (a real camera, or use_sim_time with the rig's /clock).
+            if -1e3 < latency_ms < 1e4:
+                self._latency_ms.append(latency_ms)
+
+    def _log_event(self, event):
+        if event.level == Level.OK:
+            self.get_logger().info(event.message)
+        elif event.level == Level.ERROR:
+            self.get_logger().error(event.message)
+        else:
+            self._warn(event.code, event.message)
+
+    def _warn(self, code, message):
+        now = self._now_s()
+        last = self._last_warn.get(code)
+        if last is not None and now - last < self.params['warn_throttle_s']:
+            self._suppressed[code] = self._suppressed.get(code, 0) + 1
+            return
+        n = self._suppressed.pop(code, 0)
+        self._last_warn[code] = now
+        self.get_logger().warning(message + (f' (+{n} more since last warning)' if n else ''))
+
+    def _now_s(self):
+        return self._steady.now().nanoseconds * 1e-9
+
+    def _publish_diagnostics(self):
+        state, level, message, sigma = self.localizer.status()
+        c = self.localizer.monitor.counters
+        j = self.joiner.stats
+        values = {
+            'integrity_state': state.value,
+            'chainage_sigma_m': f'{sigma:.4f}',
+            'poses_published': self._published,
+            'fixes_accepted': c.fixes_accepted,
+            'fixes_unconfirmed_used': c.fixes_unconfirmed_used,
+            'rejected_contradiction': c.rejected_contradiction,
+            'rejected_geometry': c.rejected_geometry,
+            'unconfirmed_skipped': c.unconfirmed_skipped,
+            'unknown_uid': c.unknown_uid,
+            'bad_observations': c.bad_observations,
+            'reinitialisations': c.reinitialisations,
+            'time_resets': c.time_resets,
+            'imu_rejected': c.imu_rejected,
+            'frames_joined': j.joined,
+            'frames_without_uids': j.spots_without_lamps,
+            'lamp_records_unmatched': j.unmatched_lamp_records,
+            'intrinsics': self._intrinsics_source,
+        }
+        if self._last_pose is not None:
+            values['last_pose_chainage_m'] = f'{self._last_pose.chainage_m:.3f}'
+            values['last_pose_speed_mps'] = f'{self._last_pose.speed_mps:.3f}'
+        for key, data in (('processing_ms_per_fix', self._fix_ms),
+                          ('fix_to_publish_latency_ms', self._latency_ms)):
+            if data:
+                arr = np.asarray(data)
+                values[key + '_median'] = f'{np.median(arr):.3f}'
+                values[key + '_p99'] = f'{np.percentile(arr, 99):.3f}'
+        rej = self.localizer.monitor.last_rejection
+        if rej is not None:
+            values['last_rejected_uid'] = f'{rej.uid:#06x}' if rej.uid is not None else 'none'
+            values['last_rejection'] = rej.reason
+        unknown = self.localizer.monitor.last_unknown_uid
+        if unknown is not None:
+            values['last_unknown_uid'] = f'{int(unknown[1]):#06x}'
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [conversions.diagnostic_status(f'{self.get_name()}: integrity',
+                                                    'train_localizer', level, message, values)]
+        self.pub_diag.publish(msg)
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = TrainLocalizerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, OSError) as exc:
+        # Bad parameters or an unreadable lamp map: say so and exit non-zero.
+        rclpy.logging.get_logger('train_localizer').fatal(f'cannot start: {exc}')
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

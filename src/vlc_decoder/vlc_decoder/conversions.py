@@ -1,0 +1,156 @@
+"""Messages ↔ arrays for the decoder node: images in, lamp records and diagnostics out.
+
+``vlc/lamps`` (sensor_msgs/PointCloud2, one point per lamp seen in the frame, header =
+the left image's header, little endian, ``point_step`` 104):
+
+| field | type | offset | unit / meaning |
+|---|---|---|---|
+| map_x, map_y, map_z | float64 | 0, 8, 16 | m, lamp disc centre in the lamp map's frame (map) once confirmed; NaN otherwise (not x/y/z: the header frame is the camera's) |
+| track_id | uint32 | 24 | decoder track (stable while the lamp is followed) |
+| uid | uint32 | 28 | lamp UID when state is confirmed (2) or anomaly (3); 0 otherwise |
+| state | uint32 | 32 | 0 searching, 1 partial, 2 confirmed, 3 anomaly (CRC-valid UID absent from the lamp map: not a lamp) |
+| chips_seen | uint32 | 36 | packet chips (of 54) read so far |
+| bits_known | uint32 | 40 | data bits (of 24) read, once the packet start is located |
+| flags | uint32 | 44 | bit 0 left spot, 1 right spot, 2 left cut by the border, 3 right cut, 4 stripes read from the left image, 5 from the right, 6 lamp clock off-spec (aligned by content) |
+| t_offset_s | float64 | 48 | s, exposure mid-time of the spot's rows minus the header stamp |
+| left_u, left_v | float32 | 56, 60 | px, spot centre in the left image (NaN if not seen) |
+| left_u_min, left_v_min, left_u_max, left_v_max | float32 | 64–76 | px, spot bounding box (inclusive) |
+| right_u, right_v | float32 | 80, 84 | px, right image |
+| right_u_min, right_v_min, right_u_max, right_v_max | float32 | 88–100 | px |
+"""
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from sensor_msgs.msg import PointCloud2, PointField
+
+FLAG_LEFT, FLAG_RIGHT, FLAG_LEFT_CUT, FLAG_RIGHT_CUT = 1, 2, 4, 8
+FLAG_READ_LEFT, FLAG_READ_RIGHT, FLAG_CONTENT_ALIGNED = 16, 32, 64
+
+LAMP_DTYPE = np.dtype([
+    ('map_x', '<f8'), ('map_y', '<f8'), ('map_z', '<f8'),
+    ('track_id', '<u4'), ('uid', '<u4'), ('state', '<u4'), ('chips_seen', '<u4'),
+    ('bits_known', '<u4'), ('flags', '<u4'),
+    ('t_offset_s', '<f8'),
+    ('left_u', '<f4'), ('left_v', '<f4'),
+    ('left_u_min', '<f4'), ('left_v_min', '<f4'), ('left_u_max', '<f4'), ('left_v_max', '<f4'),
+    ('right_u', '<f4'), ('right_v', '<f4'),
+    ('right_u_min', '<f4'), ('right_v_min', '<f4'), ('right_u_max', '<f4'),
+    ('right_v_max', '<f4'),
+])
+
+_FIELD_TYPES = {np.dtype('<f8'): PointField.FLOAT64, np.dtype('<f4'): PointField.FLOAT32,
+                np.dtype('<u4'): PointField.UINT32}
+
+# encoding → (channels, bytes per channel, OpenCV conversion to gray or None)
+_ENCODINGS = {
+    'mono8': (1, 1, None), '8UC1': (1, 1, None),
+    'mono16': (1, 2, None), '16UC1': (1, 2, None),
+    'rgb8': (3, 1, 'rgb'), 'bgr8': (3, 1, 'bgr'),
+    'rgba8': (4, 1, 'rgba'), 'bgra8': (4, 1, 'bgra'),
+}
+
+
+class ImageError(ValueError):
+    """An image message the decoder cannot use: ``kind`` names the problem, the text
+    says why."""
+
+    def __init__(self, kind, text):
+        super().__init__(text)
+        self.kind = kind
+
+
+def image_to_mono8(msg):
+    """sensor_msgs/Image → (H, W) uint8 gray array (a view when already mono8).
+
+    Colour images are converted with the ITU-R BT.601 luma weights; 16-bit images keep
+    their 8 most significant bits. Raises ImageError for an unknown encoding, an empty,
+    truncated or inconsistent image.
+    """
+    if msg.encoding not in _ENCODINGS:
+        raise ImageError('encoding', f'unsupported encoding {msg.encoding!r}')
+    channels, depth, colour = _ENCODINGS[msg.encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height == 0 or width == 0:
+        raise ImageError('empty', f'empty image ({width}x{height})')
+    if step < width * channels * depth:
+        raise ImageError('step', f'step {step} < {width} px x {channels * depth} bytes')
+    data = np.frombuffer(msg.data, dtype=np.uint8)
+    if data.size < step * height:
+        raise ImageError('truncated',
+                         f'truncated image: {data.size} bytes < step {step} x {height} rows')
+    rows = data[:step * height].reshape(height, step)[:, :width * channels * depth]
+    if depth == 2:
+        order = '>u2' if msg.is_bigendian else '<u2'
+        return (rows.view(order).reshape(height, width) >> 8).astype(np.uint8)
+    if colour is None:
+        return rows
+    pixels = rows.reshape(height, width, channels).astype(np.float32)
+    r_index = 0 if colour.startswith('rgb') else 2
+    gray = (0.299 * pixels[..., r_index] + 0.587 * pixels[..., 1]
+            + 0.114 * pixels[..., 2 - r_index])
+    return np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+
+
+def _spot_fields(spot):
+    if spot is None:
+        return (np.nan,) * 6
+    u0, v0, u1, v1 = spot.bbox
+    return (spot.u, spot.v, u0, v0, u1, v1)
+
+
+def records_to_array(records, row_time_s, exposure_s):
+    """LampRecords → structured array of ``LAMP_DTYPE`` (one element per record)."""
+    out = np.zeros(len(records), dtype=LAMP_DTYPE)
+    for i, rec in enumerate(records):
+        pos = rec.position_m if rec.position_m is not None else (np.nan,) * 3
+        flags = 0
+        if rec.left is not None:
+            flags |= FLAG_LEFT | (FLAG_LEFT_CUT if rec.left.cut else 0)
+        if rec.right is not None:
+            flags |= FLAG_RIGHT | (FLAG_RIGHT_CUT if rec.right.cut else 0)
+        if rec.source.startswith(('left', 'both')):
+            flags |= FLAG_READ_LEFT
+        if rec.source.startswith(('right', 'both')):
+            flags |= FLAG_READ_RIGHT
+        if rec.content_aligned:
+            flags |= FLAG_CONTENT_ALIGNED
+        out[i] = (pos[0], pos[1], pos[2], rec.track_id, max(rec.uid, 0) if rec.state >= 2
+                  else 0, rec.state, rec.chips_seen, rec.bits_known, flags,
+                  rec.mid_row * row_time_s + 0.5 * exposure_s,
+                  *_spot_fields(rec.left), *_spot_fields(rec.right))
+    return out
+
+
+def array_to_cloud(array, header):
+    """Structured array → sensor_msgs/PointCloud2 (unordered: height 1)."""
+    msg = PointCloud2()
+    msg.header = header
+    msg.height = 1
+    msg.width = len(array)
+    msg.fields = [PointField(name=name, offset=array.dtype.fields[name][1],
+                             datatype=_FIELD_TYPES[array.dtype.fields[name][0]], count=1)
+                  for name in array.dtype.names]
+    msg.is_bigendian = False
+    msg.point_step = array.dtype.itemsize
+    msg.row_step = msg.point_step * msg.width
+    msg.is_dense = False
+    msg.data = array.tobytes()
+    return msg
+
+
+def cloud_to_array(msg):
+    """sensor_msgs/PointCloud2 written by :func:`array_to_cloud` → structured array."""
+    names = {f.name: f for f in msg.fields}
+    if msg.point_step != LAMP_DTYPE.itemsize or set(names) != set(LAMP_DTYPE.names):
+        raise ValueError('not a vlc/lamps cloud')
+    return np.frombuffer(bytes(msg.data), dtype=LAMP_DTYPE, count=msg.width * msg.height)
+
+
+def diagnostics(stamp, name, hardware_id, level, message, values):
+    """A DiagnosticArray with one status; ``values`` a dict of key → value (str()'d)."""
+    array = DiagnosticArray()
+    array.header.stamp = stamp
+    status = DiagnosticStatus(level=level, name=name, message=message,
+                              hardware_id=hardware_id)
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
+    array.status = [status]
+    return array

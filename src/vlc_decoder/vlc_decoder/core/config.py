@@ -1,0 +1,72 @@
+"""Typed configuration of the decoder core (filled once from the node's parameters)."""
+from dataclasses import dataclass
+
+
+@dataclass
+class DecoderConfig:
+    """Every tunable of the decoder core; units in the names.
+
+    Signal timing
+        ``row_time_s`` (row-to-row exposure start delay), ``exposure_s`` (row exposure),
+        ``chip_rate_hz`` (nominal lamp chip rate), ``off_level`` (lamp "off" output
+        relative to "on"): the camera's and protocol's, not in camera_info.
+    Chip decisions
+        ``chip_margin``: a chip is read only when its normalised level is at least this
+        far from 0.5; ``min_chip_weight``: and when rows worth this many fully-inside
+        exposures cover it.
+    Clocks
+        ``rate_search_tolerance``: the within-frame chip-rate search span (fraction),
+        covering the protocol's ±2 % driver mismatch, used for profiles spanning at
+        least ``rate_search_min_chips``; ``clock_tolerance_ppm``: the lamp clock accuracy
+        assumed when carrying a packet phase from frame to frame.
+    Detection
+        threshold ``background + detect_threshold_sigma·σ`` but at least
+        ``detect_min_contrast`` DN above it (or Otsu: ``use_otsu``, ``median_filter``),
+        ``detect_min_area_px``, ``max_spots`` per image, ``border_margin_px``.
+    Tracking
+        ``track_gate_px`` association gate, ``track_max_missed_frames``,
+        ``max_fragments`` frames of stripes kept per lamp.
+    """
+
+    row_time_s: float = 30e-6
+    exposure_s: float = 50e-6
+    chip_rate_hz: float = 10_000.0
+    off_level: float = 0.05
+    chip_margin: float = 0.2
+    min_chip_weight: float = 0.6
+    rate_search_tolerance: float = 0.03
+    rate_search_min_chips: float = 24.0
+    clock_tolerance_ppm: float = 100.0
+    # spot detection
+    detect_threshold_sigma: float = 8.0
+    detect_min_contrast: float = 20.0
+    detect_min_area_px: int = 3
+    use_otsu: bool = False
+    median_filter: bool = False
+    max_spots: int = 8
+    # tracking and assembly
+    track_gate_px: float = 60.0
+    track_max_missed_frames: int = 15
+    max_fragments: int = 120
+    border_margin_px: int = 2
+
+    def __post_init__(self):
+        if not (self.row_time_s > 0 and self.exposure_s > 0 and self.chip_rate_hz > 0):
+            raise ValueError('row_time_s, exposure_s and chip_rate_hz must be positive')
+        if not 0.0 <= self.off_level < 0.5:
+            raise ValueError('off_level must be in [0, 0.5)')
+        if not 0.0 < self.chip_margin < 0.5:
+            raise ValueError('chip_margin must be in (0, 0.5)')
+
+    @property
+    def rows_per_chip(self):
+        return 1.0 / (self.chip_rate_hz * self.row_time_s)
+
+    @property
+    def max_dark_gap_rows(self):
+        """Longest dark stretch inside one lamp spot, rows.
+
+        The longest off run of the protocol is four chips (header ``000`` followed by a
+        data bit 0, whose first chip is off); the exposure shortens it by one exposure.
+        """
+        return 4.0 * self.rows_per_chip + 2.0

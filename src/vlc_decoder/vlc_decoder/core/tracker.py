@@ -1,0 +1,255 @@
+"""Per-frame pipeline: spots in both images → stereo pairs → lamp tracks → UIDs.
+
+Left and right rows are exposed at the same instants (rectified stereo, one stamp), so a
+lamp's two spots carry the same chips: the pair's row profiles are averaged, and when
+one spot is cut by the image border (its row sums then miss part of the disc) the other
+image's profile is used alone (paper: the right image stands in for the left one).
+Tracks follow spots from frame to frame by a constant-velocity prediction in the left
+image and own one :class:`~vlc_decoder.core.assembly.PacketAssembler` each.
+"""
+from dataclasses import dataclass, field
+import itertools
+import logging
+
+import numpy as np
+
+from .assembly import CONFIRMED, PacketAssembler
+from .spots import detect
+
+LOG = logging.getLogger(__name__)
+
+ANOMALY = 3   # decode state of a CRC-valid UID that the lamp map does not know
+
+# how far (px) the left and right spots of one lamp may sit apart in rows
+PAIR_ROW_TOLERANCE_PX = 3.0
+
+
+@dataclass
+class LampRecord:
+    """What the decoder reports about one tracked lamp in one stereo frame."""
+
+    track_id: int
+    state: int                      # SEARCHING/PARTIAL/CONFIRMED (assembly) or ANOMALY
+    uid: int = -1                   # once confirmed (or the anomalous UID)
+    position_m: np.ndarray = None   # lamp position in map once confirmed, else None
+    left: object = None             # Spot in the left image or None
+    right: object = None            # Spot in the right image or None
+    chips_seen: int = 0
+    bits_known: int = 0
+    mid_row: float = 0.0            # mean row of the spot (exposure mid-time reference)
+    source: str = ''                # which image(s) the stripes were read from
+    content_aligned: bool = False   # the lamp's clock is off: aligned by content
+
+
+@dataclass
+class _Track:
+    track_id: int
+    assembler: PacketAssembler
+    u: float
+    v: float
+    disparity: float
+    stamp_ns: int
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    missed: int = 0
+    seen: int = 0
+    anomaly_reported: bool = False
+
+    def predict(self, stamp_ns):
+        dt = (stamp_ns - self.stamp_ns) * 1e-9
+        return np.array([self.u, self.v]) + self.velocity * dt
+
+
+def _row_overlap(a, b):
+    return min(a.row1, b.row1) - max(a.row0, b.row0)
+
+
+def pair_spots(left, right, max_disparity_px):
+    """Greedy stereo pairing: same rows, right spot left of the left one.
+
+    Returns a list of (left_spot or None, right_spot or None).
+    """
+    candidates = []
+    for i, a in enumerate(left):
+        for j, b in enumerate(right):
+            overlap = _row_overlap(a, b)
+            if overlap < 0.5 * min(a.row1 - a.row0, b.row1 - b.row0):
+                continue
+            cut = a.cut or b.cut
+            # a spot cut by the border has a biased centre: only its rows pair it
+            if not cut and abs(a.v - b.v) > PAIR_ROW_TOLERANCE_PX + 0.1 * (a.row1 - a.row0):
+                continue
+            disparity = a.u - b.u
+            if not -2.0 - (a.width_px + b.width_px if cut else 0.0) <= disparity \
+                    <= max_disparity_px:
+                continue
+            candidates.append((abs(a.v - b.v) + 0.01 * disparity, i, j))
+    candidates.sort()
+    used_l, used_r, pairs = set(), set(), []
+    for _, i, j in candidates:
+        if i in used_l or j in used_r:
+            continue
+        used_l.add(i)
+        used_r.add(j)
+        pairs.append((left[i], right[j]))
+    pairs += [(a, None) for i, a in enumerate(left) if i not in used_l]
+    pairs += [(None, b) for j, b in enumerate(right) if j not in used_r]
+    return pairs
+
+
+def combine_profiles(left, right):
+    """One row profile from a stereo pair of spots (either may be None).
+
+    Returns rows (R,), level (R,), weight (R,) and a label of the source used.
+    """
+    sides = [s for s in (left, right) if s is not None]
+    whole = [s for s in sides if not s.cut]
+    use = whole if whole else sides
+    if len(use) == 1:
+        s = use[0]
+        label = 'left' if s is left else 'right'
+        return s.rows, s.level, s.weight, label + ('_cut' if s.cut else '')
+    a, b = use
+    lo, hi = min(a.rows[0], b.rows[0]), max(a.rows[-1], b.rows[-1])
+    rows = np.arange(lo, hi + 1)
+    total_w = np.zeros(len(rows))
+    total_y = np.zeros(len(rows))
+    best_w = np.zeros(len(rows))
+    for s in use:
+        idx = s.rows - lo
+        total_w[idx] += s.weight
+        total_y[idx] += s.weight * s.level
+        best_w[idx] = np.maximum(best_w[idx], s.weight)
+    keep = total_w > 0
+    level = total_y[keep] / total_w[keep]
+    return rows[keep], level, best_w[keep], 'both' if not a.cut else 'both_cut'
+
+
+class LampTracker:
+    """Decodes lamps from stereo frames.
+
+    Parameters
+    ----------
+    cfg : DecoderConfig
+    lamp_map : object with ``by_uid(uid)`` returning a lamp (with ``position_m``) or
+        None, e.g. ``vlc_stereo_camera.core.lamp_map.LampMap``; None: no lookup
+    max_disparity_px : largest stereo disparity to pair (fx·baseline / nearest depth)
+    """
+
+    def __init__(self, cfg, lamp_map=None, max_disparity_px=250.0):
+        self.cfg = cfg
+        self.lamp_map = lamp_map
+        self.max_disparity_px = max_disparity_px
+        self.tracks = []
+        self._ids = itertools.count(1)
+        self.anomalies = {}          # uid -> count of tracks that decoded it
+        self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
+        self.last_stamp_ns = None
+
+    def process(self, stamp_ns, left_image, right_image):
+        """Decode one stereo frame (mono8 arrays of equal shape). Returns LampRecords."""
+        left = detect(left_image, self.cfg)
+        right = detect(right_image, self.cfg) if right_image is not None else []
+        return self.process_spots(stamp_ns, left, right)
+
+    def process_spots(self, stamp_ns, left, right):
+        """Track and decode already-detected spots of one frame."""
+        stamp_ns = int(stamp_ns)
+        if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
+            raise ValueError(f'stamp {stamp_ns} ns is not after {self.last_stamp_ns} ns')
+        self.last_stamp_ns = stamp_ns
+        observations = pair_spots(left, right, self.max_disparity_px)
+        matches = self._associate(stamp_ns, observations)
+        records = []
+        for obs_index, (spot_l, spot_r) in enumerate(observations):
+            track = matches.get(obs_index)
+            u, v, disparity = self._left_position(spot_l, spot_r, track)
+            if track is None:
+                track = _Track(next(self._ids), PacketAssembler(self.cfg, stamp_ns), u, v,
+                               disparity, stamp_ns)
+                self.tracks.append(track)
+            else:
+                dt = (stamp_ns - track.stamp_ns) * 1e-9
+                if dt > 0:
+                    track.velocity = (np.array([u, v]) - [track.u, track.v]) / dt
+                track.u, track.v, track.stamp_ns = u, v, stamp_ns
+                if disparity is not None:
+                    track.disparity = disparity
+            track.missed = 0
+            track.seen += 1
+            rows, level, weight, source = combine_profiles(spot_l, spot_r)
+            was_confirmed = track.assembler.state == CONFIRMED
+            track.assembler.add(stamp_ns, rows, level, weight)
+            records.append(self._record(track, spot_l, spot_r, rows, source, stamp_ns,
+                                        was_confirmed))
+        seen = {id(t) for t in matches.values()}
+        for track in self.tracks:
+            if id(track) not in seen and track.stamp_ns != stamp_ns:
+                track.missed += 1
+        self.tracks = [t for t in self.tracks if t.missed <= self.cfg.track_max_missed_frames]
+        return records
+
+    def _left_position(self, spot_l, spot_r, track):
+        if spot_l is not None and spot_r is not None:
+            return spot_l.u, spot_l.v, spot_l.u - spot_r.u
+        if spot_l is not None:
+            return spot_l.u, spot_l.v, None
+        disparity = track.disparity if track is not None and track.disparity else 0.0
+        return spot_r.u + disparity, spot_r.v, None
+
+    def _associate(self, stamp_ns, observations):
+        """Greedy nearest-neighbour association of observations to tracks."""
+        pairs = []
+        for t_index, track in enumerate(self.tracks):
+            pred = track.predict(stamp_ns)
+            dt = (stamp_ns - track.stamp_ns) * 1e-9
+            step = float(np.linalg.norm(track.velocity)) * dt
+            for o_index, (spot_l, spot_r) in enumerate(observations):
+                u, v, _ = self._left_position(spot_l, spot_r, track)
+                spot = spot_l if spot_l is not None else spot_r
+                # a lamp unseen for a while (vibration swings it out of view at the
+                # border) may come back some way off its predicted position
+                gate = (self.cfg.track_gate_px * (1 + track.missed) + 0.5 * step
+                        + spot.height_px)
+                dist = float(np.hypot(u - pred[0], v - pred[1]))
+                if dist <= gate:
+                    pairs.append((dist, t_index, o_index))
+        # check the nearest candidates against the tracks' lamp clocks: a spot whose
+        # stripes do not fall on a track's chip grid belongs to another lamp
+        checked = []
+        for dist, t_index, o_index in sorted(pairs):
+            rows, level, weight, _ = combine_profiles(*observations[o_index])
+            if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight):
+                checked.append((dist, t_index, o_index))
+        pairs = checked
+        pairs.sort()
+        used_t, used_o, matches = set(), set(), {}
+        for _, t_index, o_index in pairs:
+            if t_index in used_t or o_index in used_o:
+                continue
+            used_t.add(t_index)
+            used_o.add(o_index)
+            matches[o_index] = self.tracks[t_index]
+        return matches
+
+    def _record(self, track, spot_l, spot_r, rows, source, stamp_ns, was_confirmed):
+        asm = track.assembler
+        state = asm.state
+        uid = asm.uid if asm.uid is not None else -1
+        position = None
+        if state == CONFIRMED:
+            lamp = self.lamp_map.by_uid(uid) if self.lamp_map is not None else None
+            if lamp is None and self.lamp_map is not None:
+                state = ANOMALY
+                if not track.anomaly_reported:
+                    track.anomaly_reported = True
+                    self.anomalies[uid] = self.anomalies.get(uid, 0) + 1
+                    LOG.warning('CRC-valid UID %#06x is not in the lamp map', uid)
+            elif lamp is not None:
+                position = np.asarray(lamp.position_m, dtype=float)
+            if not was_confirmed:
+                self.confirmations.append((track.track_id, uid, stamp_ns))
+        return LampRecord(track_id=track.track_id, state=state, uid=uid,
+                          position_m=position, left=spot_l, right=spot_r,
+                          chips_seen=asm.chips_seen, bits_known=asm.bits_known,
+                          mid_row=0.5 * (float(rows[0]) + float(rows[-1])),
+                          source=source, content_aligned=asm.content_mode)

@@ -1,0 +1,295 @@
+"""``vlc_decoder_node``: lamp UIDs from the stripes of the stereo camera's lamp spots.
+
+Subscribes (relative names):
+
+* ``stereo/left/image_raw``, ``stereo/right/image_raw`` (sensor_msgs/Image; reliable,
+  keep last 5): paired by exact stamp. mono8 is used as is; rgb8/bgr8/rgba8/bgra8 are
+  converted to gray, mono16 keeps its high byte.
+* ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
+  best effort, volatile: matches any publisher): image size checks and the stereo
+  disparity bound fx·baseline / ``min_depth_m``.
+
+Publishes:
+
+* ``vlc/lamps`` (sensor_msgs/PointCloud2; reliable, depth 10): one point per lamp spot
+  seen in the frame, header = the left image's header; fields in ``conversions.py``
+  (track id, spot boxes and centres, decode state, chips seen, UID and map position once
+  confirmed, exposure mid-time offset).
+* ``diagnostics`` (diagnostic_msgs/DiagnosticArray; reliable, depth 10): every
+  ``diagnostics_period_s`` and at once when a CRC-valid UID absent from the lamp map
+  appears (an anomaly, never published as a lamp).
+
+Bad input (unknown encoding, empty or truncated image, left/right size mismatch,
+unpaired or out-of-order stamps) gives a throttled warning and the frame is skipped.
+Frames are decoded on the executor thread: a stereo pair takes a few milliseconds
+(``decoder_benchmark``), well inside the 33 ms frame period. OpenCV runs single-threaded.
+"""
+import collections
+import sys
+import time
+
+import cv2
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+import numpy as np
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+
+from . import conversions
+from .core.config import DecoderConfig
+from .core.tracker import ANOMALY, LampTracker
+
+WARN_THROTTLE_S = 2.0
+
+
+class StartupError(RuntimeError):
+    """Invalid configuration: the node cannot start (exit code 2)."""
+
+
+def _float(text, lo, hi):
+    return ParameterDescriptor(description=text, floating_point_range=[
+        FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)])
+
+
+def _int(text, lo, hi):
+    return ParameterDescriptor(description=text, integer_range=[
+        IntegerRange(from_value=int(lo), to_value=int(hi), step=1)])
+
+
+def _bool(text):
+    return ParameterDescriptor(description=text, type=ParameterType.PARAMETER_BOOL)
+
+
+def _str(text):
+    return ParameterDescriptor(description=text, type=ParameterType.PARAMETER_STRING)
+
+
+# name, default, descriptor; the DecoderConfig fields first, then the node's own
+CORE_PARAMETERS = (
+    ('row_time_s', 30e-6, _float('Delay between the exposure starts of two rows, s.',
+                                 1e-7, 1e-3)),
+    ('exposure_s', 50e-6, _float('Row exposure time, s.', 1e-7, 0.033)),
+    ('chip_rate_hz', 10_000.0, _float('Nominal lamp chip rate, chips/s.', 2000.0, 40000.0)),
+    ('off_level', 0.05, _float('Lamp "off" output relative to "on".', 0.0, 0.49)),
+    ('chip_margin', 0.2, _float('A chip is read only this far (normalised level) from 0.5.',
+                                0.05, 0.45)),
+    ('min_chip_weight', 0.6, _float('Evidence (fully-inside row exposures) a chip read '
+                                    'needs.', 0.1, 10.0)),
+    ('rate_search_tolerance', 0.03, _float('Within-frame chip-rate search span (fraction).',
+                                           0.0, 0.1)),
+    ('rate_search_min_chips', 24.0, _float('Profiles spanning fewer chips keep the prior '
+                                           'rate.', 4.0, 1000.0)),
+    ('clock_tolerance_ppm', 100.0, _float('Lamp clock accuracy assumed frame to frame, ppm.',
+                                          1.0, 10000.0)),
+    ('detect_threshold_sigma', 8.0, _float('Spot threshold above the background, in '
+                                           'background noise sigmas.', 2.0, 100.0)),
+    ('detect_min_contrast', 20.0, _float('Spot threshold at least this far above the '
+                                         'background, DN.', 1.0, 250.0)),
+    ('detect_min_area_px', 3, _int('Smallest spot core, pixels.', 1, 10000)),
+    ('use_otsu', False, _bool('Threshold with Otsu (the paper) instead of the noise-'
+                              'referenced threshold.')),
+    ('median_filter', False, _bool('3x3 median filter before thresholding (the paper).')),
+    ('max_spots', 8, _int('Most lamp spots decoded per image.', 1, 64)),
+    ('track_gate_px', 60.0, _float('Association gate around a predicted spot, px.',
+                                   1.0, 2000.0)),
+    ('track_max_missed_frames', 15, _int('Frames a track survives unseen.', 0, 1000)),
+    ('max_fragments', 120, _int('Frames of stripes kept per lamp for assembly.', 2, 10000)),
+    ('border_margin_px', 2, _int('A spot this close to the left/right border is cut.',
+                                 0, 100)),
+)
+NODE_PARAMETERS = (
+    ('lamp_map_path', '', _str("Lamp map YAML; '' = vlc_stereo_camera's installed map.")),
+    ('min_depth_m', 0.5, _float('Nearest lamp depth paired in stereo, m (disparity bound).',
+                                0.05, 100.0)),
+    ('max_pending_stamps', 10, _int('Unpaired image stamps kept before the oldest is '
+                                    'dropped.', 1, 1000)),
+    ('diagnostics_period_s', 1.0, _float('Diagnostics period, s (wall time).', 0.05, 3600.0)),
+    ('hardware_id', 'stereo_camera', _str('hardware_id of the diagnostics status.')),
+)
+
+
+class VlcDecoderNode(Node):
+    """Thin ROS wrapper around :class:`~vlc_decoder.core.tracker.LampTracker`."""
+
+    def __init__(self, **kwargs):
+        super().__init__('vlc_decoder_node', **kwargs)
+        for name, default, descriptor in CORE_PARAMETERS + NODE_PARAMETERS:
+            self.declare_parameter(name, default, descriptor)
+        value = {n: self.get_parameter(n).value for n, _, _ in CORE_PARAMETERS}
+        try:
+            self.cfg = DecoderConfig(**value)
+        except ValueError as error:
+            raise StartupError(f'invalid parameters: {error}') from error
+        self.lamp_map_path = self.get_parameter('lamp_map_path').value
+        self.min_depth_m = self.get_parameter('min_depth_m').value
+        self.max_pending = self.get_parameter('max_pending_stamps').value
+        self.hardware_id = self.get_parameter('hardware_id').value
+        lamp_map = self._load_lamp_map(self.lamp_map_path)
+        self.tracker = LampTracker(self.cfg, lamp_map)
+        self.infos = [None, None]
+        self.pending = collections.OrderedDict()   # stamp_ns -> [left msg, right msg]
+        self.last_stamp_ns = None
+        self.stats = collections.Counter()
+        self.proc_ms = collections.deque(maxlen=300)
+        self.reported_anomalies = set()
+        self._last_warning = {}
+
+        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(Image, 'stereo/left/image_raw',
+                                 lambda m: self._on_image(0, m), image_qos)
+        self.create_subscription(Image, 'stereo/right/image_raw',
+                                 lambda m: self._on_image(1, m), image_qos)
+        self.create_subscription(CameraInfo, 'stereo/left/camera_info',
+                                 lambda m: self._on_info(0, m), qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, 'stereo/right/camera_info',
+                                 lambda m: self._on_info(1, m), qos_profile_sensor_data)
+        self.pub_lamps = self.create_publisher(PointCloud2, 'vlc/lamps', 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.create_timer(self.get_parameter('diagnostics_period_s').value,
+                          self._publish_diagnostics)
+        self.get_logger().info(
+            f'decoding lamps at {self.cfg.chip_rate_hz:.0f} chips/s, rows '
+            f'{self.cfg.row_time_s * 1e6:.1f} us, exposure {self.cfg.exposure_s * 1e6:.1f} us; '
+            f'lamp map {self.lamp_map_path or "(default)"} with '
+            f'{len(lamp_map.lamps) if lamp_map is not None else 0} lamps')
+
+    def _load_lamp_map(self, path):
+        resolved = resolve_lamp_map_path(path)
+        try:
+            return LampMap.load(resolved)
+        except (OSError, ValueError, KeyError, TypeError) as error:
+            raise StartupError(f'cannot load the lamp map {resolved}: {error}') from error
+
+    # ------------------------------------------------------------------ input
+    def _warn(self, kind, text):
+        """Warn at most once per WARN_THROTTLE_S (wall time) for each kind of problem;
+        rclpy's own throttle is per call site and would let one kind hide the others."""
+        now = time.monotonic()
+        if now - self._last_warning.get(kind, -np.inf) >= WARN_THROTTLE_S:
+            self._last_warning[kind] = now
+            self.get_logger().warning(text)
+
+    def _on_info(self, side, msg):
+        self.infos[side] = msg
+
+    def _on_image(self, side, msg):
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
+            self.stats['skipped_out_of_order'] += 1
+            self._warn('out_of_order', f'image stamp {stamp_ns} ns is not after the last '
+                       'decoded frame: skipped')
+            return
+        entry = self.pending.setdefault(stamp_ns, [None, None])
+        entry[side] = msg
+        if entry[0] is not None and entry[1] is not None:
+            del self.pending[stamp_ns]
+            self._drop_older_than(stamp_ns)
+            self._process(stamp_ns, entry[0], entry[1])
+        elif len(self.pending) > self.max_pending:
+            old_stamp, _ = self.pending.popitem(last=False)
+            self.stats['skipped_unpaired'] += 1
+            self._warn('unpaired', f'no stereo partner for stamp {old_stamp} ns: dropped')
+
+    def _drop_older_than(self, stamp_ns):
+        for old in [s for s in self.pending if s < stamp_ns]:
+            del self.pending[old]
+            self.stats['skipped_unpaired'] += 1
+            self._warn('unpaired', f'no stereo partner for stamp {old} ns: dropped')
+
+    # ------------------------------------------------------------------ decoding
+    def _process(self, stamp_ns, left_msg, right_msg):
+        try:
+            left = conversions.image_to_mono8(left_msg)
+            right = conversions.image_to_mono8(right_msg)
+        except conversions.ImageError as error:
+            self.stats['skipped_bad_image'] += 1
+            self._warn(f'bad_image:{error.kind}', f'frame {stamp_ns} ns skipped: {error}')
+            return
+        if left.shape != right.shape:
+            self.stats['skipped_size_mismatch'] += 1
+            self._warn('size_mismatch', f'frame {stamp_ns} ns skipped: left '
+                       f'{left.shape[::-1]} and right {right.shape[::-1]} images differ in size')
+            return
+        for side, info in enumerate(self.infos):
+            if info is not None and (info.width, info.height) != (left.shape[1],
+                                                                   left.shape[0]):
+                self._warn(f'camera_info_{side}', f'camera_info {info.width}x{info.height} '
+                           f'does not match the {left.shape[1]}x{left.shape[0]} images')
+        self.tracker.max_disparity_px = self._max_disparity()
+        start = time.perf_counter()
+        records = self.tracker.process(stamp_ns, left, right)
+        self.proc_ms.append((time.perf_counter() - start) * 1e3)
+        self.last_stamp_ns = stamp_ns
+        self.stats['frames_decoded'] += 1
+        array = conversions.records_to_array(records, self.cfg.row_time_s,
+                                             self.cfg.exposure_s)
+        self.pub_lamps.publish(conversions.array_to_cloud(array, left_msg.header))
+        anomalies = {r.uid for r in records if r.state == ANOMALY}
+        if anomalies - self.reported_anomalies:
+            self.reported_anomalies |= anomalies
+            self._warn('anomaly', 'CRC-valid UID(s) absent from the lamp map: '
+                       + ', '.join(f'{u:#06x}' for u in sorted(anomalies)))
+            self._publish_diagnostics()
+
+    def _max_disparity(self):
+        info = self.infos[1]
+        if info is None or len(info.p) < 12 or info.p[3] >= 0:
+            return 250.0
+        return -float(info.p[3]) / self.min_depth_m        # P[0,3] = -fx·baseline
+
+    # ------------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self):
+        tracker = self.tracker
+        skipped = sum(v for k, v in self.stats.items() if k.startswith('skipped'))
+        anomalies = sorted(tracker.anomalies)
+        level = DiagnosticStatus.OK
+        message = 'decoding'
+        if anomalies:
+            level = DiagnosticStatus.WARN
+            message = 'CRC-valid UIDs absent from the lamp map: ' + ', '.join(
+                f'{u:#06x}' for u in anomalies)
+        elif skipped:
+            level = DiagnosticStatus.WARN
+            message = f'{skipped} frames skipped (bad input)'
+        values = dict(self.stats)
+        values.update({
+            'tracks_active': len(tracker.tracks),
+            'lamps_confirmed': len(tracker.confirmations),
+            'anomalous_uids': ' '.join(f'{u:#06x}' for u in anomalies),
+            'decode_ms_median': f'{np.median(self.proc_ms):.2f}' if self.proc_ms else 'nan',
+            'decode_ms_max': f'{np.max(self.proc_ms):.2f}' if self.proc_ms else 'nan',
+        })
+        self.pub_diag.publish(conversions.diagnostics(
+            self.get_clock().now().to_msg(), 'vlc_decoder: lamp identification',
+            self.hardware_id, level, message, values))
+
+
+def main(args=None):
+    cv2.setNumThreads(1)
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = VlcDecoderNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except StartupError as error:
+        rclpy.logging.get_logger('vlc_decoder_node').fatal(str(error))
+        code = 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()
