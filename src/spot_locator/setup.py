@@ -21,7 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            
+            'spot_locator_node = spot_locator.spot_locator_node:main',
+            'spot_benchmark = spot_locator.benchmark:main',
         ],
     },
 )

@@ -105,7 +105,7 @@ PARAMETERS = (
     ('pitch_deg', _RIG.pitch_deg, _desc('Optical axis tilt below horizontal, deg.',
                                         -90.0, 90.0)),
     ('row_time_s', 30e-6, _desc('Rolling-shutter row time, s.', 0.0, 1e-2)),
-    ('exposure_s', 50e-6, _desc('Row exposure time, s.', 0.0, 0.1)),
+    ('exposure_s', 25e-6, _desc('Row exposure time, s.', 0.0, 0.1)),
     ('track_sigma_y_m', 0.004, _desc('1-sigma lateral offset of base_link from the track, m.',
                                      1e-6, 1.0)),
     ('track_sigma_z_m', 0.004, _desc('1-sigma vertical offset of base_link from the track, m.',

@@ -74,8 +74,8 @@ def _str(text):
 CORE_PARAMETERS = (
     ('row_time_s', 30e-6, _float('Delay between the exposure starts of two rows, s.',
                                  1e-7, 1e-3)),
-    ('exposure_s', 50e-6, _float('Row exposure time, s.', 1e-7, 0.033)),
-    ('chip_rate_hz', 10_000.0, _float('Nominal lamp chip rate, chips/s.', 2000.0, 40000.0)),
+    ('exposure_s', 25e-6, _float('Row exposure time, s.', 1e-7, 0.033)),
+    ('chip_rate_hz', 20_000.0, _float('Nominal lamp chip rate, chips/s.', 2000.0, 40000.0)),
     ('off_level', 0.05, _float('Lamp "off" output relative to "on".', 0.0, 0.49)),
     ('chip_margin', 0.2, _float('A chip is read only this far (normalised level) from 0.5.',
                                 0.05, 0.45)),

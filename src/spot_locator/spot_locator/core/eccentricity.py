@@ -1,0 +1,239 @@
+"""Perspective eccentricity of the lamp disc: the imaged ellipse's centre is not the image
+of the disc centre, and the offset differs between the two cameras.
+
+For a disc of radius R, centre C = (X, Y, Z) and unit normal n in an optical frame, the
+image conic's centre is the pole of the line at infinity, ``e ~ K (R²(I − n nᵀ) − C Cᵀ) ẑ``,
+which gives the exact offset from the projected centre c = (fx X/Z + cx, fy Y/Z + cy)::
+
+    e_u − c_u = fx R² (Z n_x n_z + X (1 − n_z²)) / (Z (Z² − R² (1 − n_z²)))
+    e_v − c_v = fy R² (Z n_y n_z + Y (1 − n_z²)) / (Z (Z² − R² (1 − n_z²)))
+
+(the classic bias of circular calibration targets, cf. Heikkilä 2000, Ahn 1999). The
+right camera sees the same disc at X − b, so the disparity is biased by about
+``fx R² b (1 − n_z²) / Z³``.
+
+Correction: triangulate the lamp from the two ellipse centres, compute both offsets from
+the disc geometry (normal and radius from the lamp map or the nominal lamp), subtract,
+re-triangulate, repeat (converges in 2–3 steps because the offset varies slowly with
+depth). The disc normal in the camera frame comes either from the nominal mounting or,
+for spots large enough, from the fitted ellipse itself (:func:`normals_from_conic`),
+which follows the platform's attitude disturbances.
+"""
+import numpy as np
+
+
+def ellipse_centre_offset(centre_cam, normal_cam, radius_m, fx, fy):
+    """Offset (Δu, Δv) = ellipse centre − projected disc centre, pixels.
+
+    Parameters
+    ----------
+    centre_cam : (..., 3) disc centres in the optical frame (m).
+    normal_cam : (3,) or (..., 3) unit disc normals in the optical frame.
+    radius_m : disc radius (m).
+    fx, fy : focal lengths (px).
+
+    Returns
+    -------
+    (..., 2) offsets in pixels.
+    """
+    C = np.asarray(centre_cam, float)
+    n = np.broadcast_to(np.asarray(normal_cam, float), C.shape)
+    X, Y, Z = C[..., 0], C[..., 1], C[..., 2]
+    nz = n[..., 2]
+    s2 = 1.0 - nz ** 2
+    den = Z * (Z ** 2 - radius_m ** 2 * s2)
+    du = fx * radius_m ** 2 * (Z * n[..., 0] * nz + X * s2) / den
+    dv = fy * radius_m ** 2 * (Z * n[..., 1] * nz + Y * s2) / den
+    return np.stack([du, dv], axis=-1)
+
+
+def triangulate(uv_left, uv_right, fx, fy, cx, cy, baseline_m):
+    """Rectified-stereo triangulation (paper eq. 12–14) in the left optical frame.
+
+    ``uv_left``, ``uv_right`` (..., 2) px → (..., 3) metres; Z = fx b / (u_l − u_r); the
+    row is the mean of both images' rows.
+    """
+    uvl = np.asarray(uv_left, float)
+    uvr = np.asarray(uv_right, float)
+    d = uvl[..., 0] - uvr[..., 0]
+    Z = fx * baseline_m / d
+    X = (uvl[..., 0] - cx) * Z / fx
+    Y = (0.5 * (uvl[..., 1] + uvr[..., 1]) - cy) * Z / fy
+    return np.stack([X, Y, Z], axis=-1)
+
+
+def correct_pair(uv_left, uv_right, normal_cam, radius_m, fx, fy, cx, cy, baseline_m,
+                 iterations=3):
+    """Remove the eccentricity offset from one stereo pair of ellipse centres.
+
+    Parameters
+    ----------
+    uv_left, uv_right : (2,) ellipse centres (px).
+    normal_cam : (3,) disc normal in the (left = right) optical frame.
+    radius_m : disc radius (m).
+    fx, fy, cx, cy, baseline_m : rectified stereo geometry.
+    iterations : fixed-point steps.
+
+    Returns
+    -------
+    (uv_left_corrected, uv_right_corrected, offset_left, offset_right), each (2,) px:
+    the estimated projections of the disc centre and the offsets that were removed.
+    """
+    e_l = np.asarray(uv_left, float)
+    e_r = np.asarray(uv_right, float)
+    off_l = np.zeros(2)
+    off_r = np.zeros(2)
+    for _ in range(iterations):
+        P = triangulate(e_l - off_l, e_r - off_r, fx, fy, cx, cy, baseline_m)
+        if not np.isfinite(P).all() or P[2] <= radius_m:
+            return e_l, e_r, np.zeros(2), np.zeros(2)
+        off_l = ellipse_centre_offset(P, normal_cam, radius_m, fx, fy)
+        off_r = ellipse_centre_offset(P - np.array([baseline_m, 0.0, 0.0]), normal_cam,
+                                      radius_m, fx, fy)
+    return e_l - off_l, e_r - off_r, off_l, off_r
+
+
+def normals_from_conic(Q, K):
+    """The two disc-plane normals (2, 3) consistent with an imaged circle.
+
+    ``Q`` (3, 3) is the ellipse in pixel coordinates, ``K`` the camera matrix. The cone
+    through the camera centre and the ellipse, ``A = Kᵀ Q K``, has eigenvalues
+    λ1 ≥ λ2 > 0 > λ3 (after fixing the sign); the circle's plane normal is
+    ``±sqrt((λ1 − λ2)/(λ1 − λ3)) e1 + sqrt((λ2 − λ3)/(λ1 − λ3)) e3`` (Shiu & Ahmad 1989).
+    The normals returned point toward the camera (n_z < 0).
+    """
+    A = K.T @ Q @ K
+    A = 0.5 * (A + A.T)
+    lam, V = np.linalg.eigh(A)
+    if (lam > 0).sum() == 1:
+        lam = -lam
+    order = np.argsort(lam)[::-1]
+    lam, V = lam[order], V[:, order]
+    l1, l2, l3 = lam
+    if not (l1 >= l2 > 0 > l3):
+        return np.zeros((0, 3))
+    a = np.sqrt(max((l1 - l2) / (l1 - l3), 0.0))
+    c = np.sqrt(max((l2 - l3) / (l1 - l3), 0.0))
+    out = []
+    for s in (1.0, -1.0):
+        n = V @ np.array([s * a, 0.0, c])
+        n /= np.linalg.norm(n)
+        out.append(-n if n[2] > 0 else n)
+    return np.array(out)
+
+
+def pick_normal(candidates, nominal, max_angle_deg):
+    """The candidate closest to ``nominal`` if within ``max_angle_deg``, else None."""
+    if len(candidates) == 0:
+        return None
+    nominal = np.asarray(nominal, float) / np.linalg.norm(nominal)
+    cosines = candidates @ nominal
+    i = int(np.argmax(cosines))
+    if cosines[i] < np.cos(np.radians(max_angle_deg)):
+        return None
+    return candidates[i]
+
+
+def angle_deg(a, b):
+    """Angle between two vectors, degrees."""
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    c = np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def _chords(Q, rows):
+    """Midpoint and squared half-width of the ellipse ``Q`` (N, 3, 3) on rows (N,)."""
+    a, b, c = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
+    d, e, f = Q[:, 0, 2], Q[:, 1, 2], Q[:, 2, 2]
+    m = -(b * rows + d) / a
+    w2 = m * m - (c * rows * rows + 2 * e * rows + f) / a
+    return m, w2
+
+
+def _disc_conics(K, centres, normal, radius_m):
+    """Image conics (N, 3, 3) of one disc at N centres (N, 3), optical frame.
+
+    A ray X meets the disc plane at λX with λ = (n·C)/(n·X); it grazes the rim when
+    |(n·C) X − (n·X) C|² = R² (n·X)², a quadratic form A in X; the image conic is
+    K⁻ᵀ A K⁻¹ (no matrix inversion per centre).
+    """
+    n = np.asarray(normal, float)
+    C = np.asarray(centres, float)
+    s = C @ n
+    nC = n[None, :, None] * C[:, None, :]
+    A = (s * s)[:, None, None] * np.eye(3) - s[:, None, None] * (nC + nC.transpose(0, 2, 1))
+    A += ((C * C).sum(axis=1) - radius_m ** 2)[:, None, None] * np.outer(n, n)
+    Ki = np.linalg.inv(K)
+    return Ki.T @ A @ Ki
+
+
+def _line_and_parabola(r, m, w2):
+    """Least-squares m = a + k r and w2 = g0 + g1 r + g2 r² (r centred by the caller)."""
+    V = np.column_stack([np.ones_like(r), r, r * r])
+    a, k = np.linalg.solve(V[:, :2].T @ V[:, :2], V[:, :2].T @ m)
+    g0, g1, g2 = np.linalg.solve(V.T @ V, V.T @ w2)
+    return a, k, g1, g2
+
+
+def rolling_shutter_offset(P0, velocity, normal, radius_m, K, row_time_s, exposure_s):
+    """Offset of the chord-fit centre of a moving disc from its true projection.
+
+    The lamp centre is at ``P0 + velocity·t`` (optical frame, t since the image stamp).
+    Row r shows the disc as it was at ``t_r = r·row_time_s + exposure_s/2``. The chord
+    midpoints and half-widths of those per-row ellipses are fitted with a line and a
+    parabola, exactly as :func:`~.centres.chord_fit` does with the image, giving the
+    centre the fit will report; the truth is the projection of the centre at the
+    exposure mid-time of its own row (fixed point). Returns ``(offset (2,), v_true)``;
+    with zero velocity the offset equals :func:`ellipse_centre_offset`.
+    """
+    P0 = np.asarray(P0, float)
+    V = np.asarray(velocity, float)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    v = cy
+    for _ in range(5):    # truth row: a contraction (the image moves ≪ 1 row per row)
+        P = P0 + V * (v * row_time_s + 0.5 * exposure_s)
+        v = fy * P[1] / P[2] + cy
+    truth = np.array([fx * P[0] / P[2] + cx, v])
+    # rows the moving disc may cover: the disc's largest half-height fy·R/Z, with margin
+    # for the motion during the readout; rows the ellipse misses drop out below
+    half_h = 1.3 * fy * radius_m / P[2] + 3.0
+    rows = np.arange(np.floor(v - half_h), np.ceil(v + half_h) + 1)
+    t = rows * row_time_s + 0.5 * exposure_s
+    m, w2 = _chords(_disc_conics(K, P0[None, :] + np.outer(t, V), normal, radius_m), rows)
+    inside = w2 > 0.0
+    if inside.sum() < 5:
+        return np.zeros(2), v
+    r, m, w2 = rows[inside], m[inside], w2[inside]
+    rbar = r.mean()
+    a, k, g1, g2 = _line_and_parabola(r - rbar, m, w2)
+    d0 = -g1 / (2.0 * g2)
+    observed = np.array([a + k * d0, rbar + d0])
+    return observed - truth, v
+
+
+def correct_pair_moving(uv_left, uv_right, velocity, normal_cam, radius_m, K, baseline_m,
+                        row_time_s, exposure_s, iterations=2):
+    """:func:`correct_pair` for a moving lamp: eccentricity and rolling-shutter model.
+
+    ``velocity`` (3,) m/s is the lamp's velocity relative to the cameras in the optical
+    frame. Returns the estimated projections of the disc centre at the exposure mid-time
+    of their row (left, right), the offsets removed, and that row.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    e_l = np.asarray(uv_left, float)
+    e_r = np.asarray(uv_right, float)
+    V = np.asarray(velocity, float)
+    off_l = off_r = np.zeros(2)
+    v_true = e_l[1]
+    for _ in range(iterations):
+        c_l, c_r = e_l - off_l, e_r - off_r
+        P = triangulate(c_l, c_r, fx, fy, cx, cy, baseline_m)
+        if not np.isfinite(P).all() or P[2] <= radius_m:
+            return e_l, e_r, np.zeros(2), np.zeros(2), e_l[1]
+        P0 = P - V * (0.5 * (c_l[1] + c_r[1]) * row_time_s + 0.5 * exposure_s)
+        off_l, v_true = rolling_shutter_offset(P0, V, normal_cam, radius_m, K, row_time_s,
+                                               exposure_s)
+        off_r, _ = rolling_shutter_offset(P0 - np.array([baseline_m, 0.0, 0.0]), V,
+                                          normal_cam, radius_m, K, row_time_s, exposure_s)
+    return e_l - off_l, e_r - off_r, off_l, off_r, v_true

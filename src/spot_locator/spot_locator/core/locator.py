@@ -1,0 +1,423 @@
+"""The spot locator: a rectified stereo pair in, sub-pixel lamp-centre pairs out.
+
+Per image: detect spots (closing joins the stripes, :mod:`.detection`); per spot: a
+centre (:mod:`.centres`); per stereo pair: epipolar matching (:mod:`.matching`),
+optional Wiener deblurring with the blur predicted from the train speed and the
+triangulated lamp (:mod:`.deblur`), and the perspective eccentricity correction
+(:mod:`.eccentricity`) that turns ellipse centres into projections of the disc centre.
+"""
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+
+from . import centres as cm
+from . import deblur as db
+from . import eccentricity as ecc
+from .detection import DetectConfig, detect_spots
+from .matching import MatchConfig, SpotSummary, match_spots
+
+METHODS = ('centroid', 'ellipse', 'fused', 'chord')
+ECCENTRICITY_MODES = ('off', 'nominal', 'conic')
+
+# bits of SpotPair.flags
+FLAG_METHOD_MASK = 0x3          # index into METHODS
+FLAG_WIENER = 1 << 2            # centres measured on the deblurred ROIs
+FLAG_ECC_NOMINAL = 1 << 3       # eccentricity removed with the nominal disc normal
+FLAG_ECC_CONIC = 1 << 4         # ... with the normal measured from the ellipses
+FLAG_V_FROM_WIDTH = 1 << 5      # chord fit found the centre row from the chord widths
+FLAG_ROLLING_SHUTTER = 1 << 6   # rolling-shutter model of the moving lamp applied
+FLAG_CUT_BY_BORDER = 1 << 7     # a spot of the pair is cut by the top or bottom image edge
+
+
+@dataclass
+class StereoGeometry:
+    """Rectified stereo pair (from the two CameraInfo messages): pixels and metres."""
+
+    fx: float = 1040.0
+    fy: float = 1040.0
+    cx: float = 639.5
+    cy: float = 359.5
+    baseline_m: float = 0.12
+    width: int = 1280
+    height: int = 720
+
+    @property
+    def K(self):
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class LocatorConfig:
+    """Everything the locator needs besides the images (see config/spot_locator.yaml).
+
+    method: centre estimator, one of :data:`METHODS`.
+    eccentricity: 'off', 'nominal' (normal from the mounting), 'conic' (normal measured
+        from large ellipses, nominal otherwise).
+    lamp_radius_m: disc radius (m).
+    normal_cam: nominal unit disc normal in the optical frame.
+    conic_normal_min_rows: spots at least this tall give their own normal.
+    conic_normal_max_angle_deg: a measured normal further than this from the nominal
+        one is discarded.
+    wiener: deblur the ROIs before measuring the centres.
+    wiener_balance: Wiener–Hunt regularisation weight.
+    min_blur_px: below this blur length the deblurring is skipped (px).
+    train_velocity_cam_mps: unit velocity direction of the lamps relative to the camera
+        per m/s of train speed, optical frame (−R_cam_base · x̂).
+    row_time_s, exposure_s: rolling-shutter timing.
+    reject_border_spots: drop spots cut by the image border (the chord fit keeps spots cut
+        by the top or bottom edge: their rows are complete; they are flagged).
+    rolling_shutter_model: when the train moves, replace the static eccentricity offset by
+        the offset predicted for the moving lamp (its image moves and grows while the spot
+        is read out row by row), see :func:`.eccentricity.correct_pair_moving`.
+    vignetting: 'cos4' divides each ROI by the natural cos⁴θ fall-off of the lens (a
+        brightness gradient across a large spot pulls its centroid toward the image
+        centre), 'none' leaves it.
+    contour_level: iso-contour level of the paper's ellipse fit, fraction of the peak.
+    """
+
+    method: str = 'chord'
+    eccentricity: str = 'conic'
+    lamp_radius_m: float = 0.1
+    normal_cam: tuple = (0.0, 0.0, -1.0)
+    conic_normal_min_rows: int = 30
+    conic_normal_max_angle_deg: float = 20.0
+    wiener: bool = False
+    wiener_balance: float = 0.02
+    min_blur_px: float = 0.3
+    train_velocity_cam_mps: tuple = (0.0, 0.0, 0.0)
+    row_time_s: float = 30e-6
+    exposure_s: float = 50e-6
+    reject_border_spots: bool = True
+    rolling_shutter_model: bool = True
+    vignetting: str = 'cos4'
+    contour_level: float = 0.5
+    detect: DetectConfig = field(default_factory=DetectConfig)
+    chord: cm.ChordConfig = field(default_factory=cm.ChordConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f'method must be one of {METHODS}, got {self.method!r}')
+        if self.eccentricity not in ECCENTRICITY_MODES:
+            raise ValueError(f'eccentricity must be one of {ECCENTRICITY_MODES}')
+        if self.vignetting not in ('none', 'cos4'):
+            raise ValueError("vignetting must be 'none' or 'cos4'")
+        n = np.asarray(self.normal_cam, float)
+        if n.shape != (3,) or not np.linalg.norm(n) > 0:
+            raise ValueError('normal_cam must be a non-zero 3-vector')
+
+
+@dataclass
+class SpotPair:
+    """One lamp seen in both images (image pixels, seconds).
+
+    ``uv_left``, ``uv_right``: centre estimates of the projected disc centre (2,);
+    ``sigma_left``, ``sigma_right``: their 1σ (σu, σv); ``disparity`` and its 1σ;
+    ``row_min``, ``row_max``: rows covered in the left image; ``stamp_offset_s``: exposure
+    mid-time of those rows after the image stamp; ``circularity_left/right``: α (paper
+    eq. 10); ``offset_left/right``: eccentricity offset removed (px); ``flags``: FLAG_*.
+    """
+
+    uv_left: np.ndarray
+    uv_right: np.ndarray
+    sigma_left: np.ndarray
+    sigma_right: np.ndarray
+    disparity: float
+    sigma_disparity: float
+    row_min: int
+    row_max: int
+    stamp_offset_s: float
+    circularity_left: float
+    circularity_right: float
+    offset_left: np.ndarray
+    offset_right: np.ndarray
+    blur_px: float
+    flags: int
+
+
+@dataclass
+class FrameResult:
+    """Output of one stereo pair."""
+
+    pairs: list
+    n_left: int
+    n_right: int
+    unmatched_left: int
+    unmatched_right: int
+    rejected_border: int
+    failed: int
+    processing_s: float
+
+
+@dataclass
+class _Spot:
+    region: object
+    est: cm.CentreEstimate
+    alpha: float
+    u: float
+    v: float
+
+
+class SpotLocator:
+    """Stateless per-frame spot locator (thread-safe if not shared across threads)."""
+
+    def __init__(self, config=None, geometry=None):
+        self.cfg = config or LocatorConfig()
+        self.geom = geometry or StereoGeometry()
+        n = np.asarray(self.cfg.normal_cam, float)
+        self.normal_cam = n / np.linalg.norm(n)
+
+    def process(self, left, right, speed_mps=0.0):
+        """Locate lamp spot pairs in one rectified stereo pair.
+
+        Parameters
+        ----------
+        left, right : (H, W) mono images of identical size.
+        speed_mps : train speed for the blur length (m/s, ≥ 0).
+
+        Returns
+        -------
+        FrameResult
+        """
+        t_start = time.perf_counter()
+        if np.shape(left) != np.shape(right):
+            raise ValueError(f'left {np.shape(left)} and right {np.shape(right)} differ')
+        spots = []
+        rejected = failed = 0
+        for image in (left, right):
+            found = []
+            for region in detect_spots(image, self.cfg.detect):
+                # The chord fit needs complete rows only: a spot cut by the top or bottom
+                # edge keeps them (its centre row comes from the visible part of the
+                # width parabola, with a larger σ); the other methods need the whole spot.
+                cut = (region.cut_columns if self.cfg.method == 'chord'
+                       else region.touches_border)
+                if cut and self.cfg.reject_border_spots:
+                    rejected += 1
+                    continue
+                if self.cfg.vignetting == 'cos4':
+                    region.roi = self._flat_field(region)
+                spot = self.measure(region, region.roi)
+                if spot is None:
+                    failed += 1
+                    continue
+                found.append(spot)
+            spots.append(found)
+        sl, sr = spots
+        summaries = [[SpotSummary(s.u, s.v, s.region.row_min, s.region.row_max,
+                                  s.region.area_px) for s in side] for side in spots]
+        matches, um_l, um_r = match_spots(summaries[0], summaries[1], self.cfg.match)
+        pairs = []
+        for i, j in matches:
+            pair = self._pair(sl[i], sr[j], speed_mps)
+            if pair is None:
+                failed += 1
+            else:
+                pairs.append(pair)
+        return FrameResult(pairs, len(sl), len(sr), len(um_l), len(um_r), rejected, failed,
+                           time.perf_counter() - t_start)
+
+    def measure(self, region, roi, method=None):
+        """Centre of one detected spot with ``method`` (default: the configured one).
+
+        ``roi`` is the region's grey levels to use (its own, or a deblurred copy).
+        Returns an object with the image coordinates ``u``, ``v`` (px), the
+        :class:`~.centres.CentreEstimate` ``est`` and the circularity ``alpha``, or None
+        when the method fails.
+        """
+        method = method or self.cfg.method
+        noise = region.noise_sigma
+        alpha = float('nan')
+        if method == 'chord':
+            est = cm.chord_fit(roi, region.support, noise, self.cfg.chord, region.saturated)
+        else:
+            closed = cm.close_stripes(np.where(region.support, roi, 0.0),
+                                      self.cfg.detect.closing_rows)
+            if method in ('centroid', 'fused'):
+                est_c = cm.gray_centroid(closed, region.threshold, noise)
+            if method in ('ellipse', 'fused'):
+                peak = float(closed.max())
+                contour = cm.spot_contour(closed, self.cfg.contour_level * peak)
+                est_e = cm.ellipse_fit(contour)
+                alpha = cm.circularity(contour)
+            if method == 'centroid':
+                est = est_c
+            elif method == 'ellipse':
+                est = est_e
+            else:
+                est = cm.fuse_by_circularity(est_c, est_e, alpha)
+        if not est.ok or not np.isfinite([est.u, est.v]).all():
+            return None
+        if np.isnan(alpha) and est.conic is not None:
+            alpha = cm.ellipse_circularity(est.conic)
+        if np.isnan(alpha):
+            alpha = self._alpha(region, roi)
+        return _Spot(region, est, alpha, est.u + region.u0, est.v + region.v0)
+
+    def _flat_field(self, region):
+        """The ROI divided by the lens fall-off, with clipped pixels restored per row.
+
+        A clipped pixel's true level is unknown. The lamp disc is uniform, so within one
+        row every fully covered pixel has the same flat-fielded level: clipped pixels
+        take the level of that row's unclipped plateau when the row has one (the
+        fall-off clips the brighter side of a row first, and a lower value there would
+        pull the row's centre away from it), and at least the clip level itself.
+        """
+        cos4 = self._cos4(region)
+        roi = region.roi / cos4
+        sat = region.saturated
+        if sat is None or not sat.any():
+            return roi
+        rows = sat.any(axis=1)
+        n_sat = np.maximum(sat.sum(axis=1, keepdims=True), 1)
+        clip_level = np.where(sat, roi, 0.0).sum(axis=1, keepdims=True) / n_sat
+        # the unclipped plateau: unclipped pixels near the row's unclipped maximum (their
+        # mean, as the maximum alone is pushed up by the noise)
+        top = np.where(sat, -np.inf, roi).max(axis=1, keepdims=True)
+        near_top = ~sat & (roi >= 0.95 * top)
+        n_top = near_top.sum(axis=1, keepdims=True)
+        plateau = np.where(n_top > 0, np.where(near_top, roi, 0.0).sum(axis=1, keepdims=True)
+                           / np.maximum(n_top, 1), -np.inf)
+        level = np.where(rows[:, None], np.maximum(plateau, clip_level), 0.0)
+        return np.where(sat, level, roi)
+
+    def _cos4(self, region):
+        """cos⁴ of the angle off the optical axis at each ROI pixel."""
+        g = self.geom
+        h, w = region.roi.shape
+        x = (np.arange(region.u0, region.u0 + w) - g.cx) / g.fx
+        y = (np.arange(region.v0, region.v0 + h) - g.cy) / g.fy
+        cos2 = 1.0 / (1.0 + x[None, :] ** 2 + y[:, None] ** 2)
+        return (cos2 * cos2).astype(np.float32)
+
+    def _alpha(self, region, roi):
+        closed = cm.close_stripes(np.where(region.support, roi, 0.0),
+                                  self.cfg.detect.closing_rows)
+        return cm.circularity(cm.spot_contour(closed, self.cfg.contour_level
+                                              * float(closed.max())))
+
+    def _pair(self, a, b, speed_mps):
+        g, cfg = self.geom, self.cfg
+        flags = METHODS.index(cfg.method)
+        blur_px = 0.0
+        if cfg.wiener and speed_mps > 0.0:
+            P = ecc.triangulate([a.u, a.v], [b.u, b.v], g.fx, g.fy, g.cx, g.cy, g.baseline_m)
+            if np.isfinite(P).all() and P[2] > 0:
+                vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
+                blur_px = float(np.hypot(*db.image_velocity(P, vel, g.fx, g.fy))
+                                * cfg.exposure_s)
+                a2 = self._deblur(a, P, vel)
+                b2 = self._deblur(b, P - np.array([g.baseline_m, 0.0, 0.0]), vel)
+                if a2 is not None and b2 is not None:
+                    a, b = a2, b2
+                    flags |= FLAG_WIENER
+        uv_l, uv_r = np.array([a.u, a.v]), np.array([b.u, b.v])
+        sl = np.array([a.est.sigma_u, a.est.sigma_v])
+        sr = np.array([b.est.sigma_u, b.est.sigma_v])
+        if cfg.method == 'chord':
+            uv_l, uv_r, sl, sr = _common_centre_row(a, b)
+        row_centre = 0.5 * (uv_l[1] + uv_r[1])
+        off_l = off_r = np.zeros(2)
+        vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
+        moving = cfg.rolling_shutter_model and speed_mps > 0.0
+        if cfg.eccentricity != 'off':
+            normal, source = self._normal(a, b, vel if moving else None, uv_l, uv_r)
+            if moving:
+                uv_l, uv_r, off_l, off_r, _ = ecc.correct_pair_moving(
+                    uv_l, uv_r, vel, normal, cfg.lamp_radius_m, g.K, g.baseline_m,
+                    cfg.row_time_s, cfg.exposure_s)
+                flags |= FLAG_ROLLING_SHUTTER
+            else:
+                uv_l, uv_r, off_l, off_r = ecc.correct_pair(
+                    uv_l, uv_r, normal, cfg.lamp_radius_m, g.fx, g.fy, g.cx, g.cy,
+                    g.baseline_m)
+            flags |= FLAG_ECC_CONIC if source == 'conic' else FLAG_ECC_NOMINAL
+            # rectified: the disc centre projects on one row in both images
+            row_centre = 0.5 * (uv_l[1] + uv_r[1])
+            uv_l[1] = uv_r[1] = row_centre
+        if a.est.info.get('v_from_width') and b.est.info.get('v_from_width'):
+            flags |= FLAG_V_FROM_WIDTH
+        if a.region.touches_border or b.region.touches_border:
+            flags |= FLAG_CUT_BY_BORDER
+        d = float(uv_l[0] - uv_r[0])
+        if not np.isfinite(d) or d <= 0.0:
+            return None
+        row_min, row_max = a.region.row_min, a.region.row_max
+        # The centre is the lamp's projection when its own row was exposed (the rig's
+        # truth convention). Dark stripe rows at the tips make the lit rows' mid-point a
+        # poor proxy for that row, so use the measured one.
+        t_mid = row_centre * cfg.row_time_s + 0.5 * cfg.exposure_s
+        return SpotPair(uv_l, uv_r, sl, sr, d, float(np.hypot(sl[0], sr[0])), row_min,
+                        row_max, t_mid, a.alpha, b.alpha, off_l, off_r, blur_px, flags)
+
+    def _deblur(self, spot, P, vel):
+        shift = db.image_velocity(P, vel, self.geom.fx, self.geom.fy) * self.cfg.exposure_s
+        if np.hypot(*shift) < self.cfg.min_blur_px:
+            return None
+        psf = db.motion_psf(shift)
+        restored = db.wiener_deblur(spot.region.roi, psf, self.cfg.wiener_balance)
+        return self.measure(spot.region, restored)
+
+    def _normal(self, a, b, velocity=None, uv_l=None, uv_r=None):
+        """Disc normal for the eccentricity correction and where it came from.
+
+        With a ``velocity`` (lamp relative to the camera, optical frame, m/s) the fitted
+        ellipses are first undistorted: the rolling shutter shears and stretches them by
+        the image velocity times the row time.
+        """
+        cfg, g = self.cfg, self.geom
+        if cfg.eccentricity == 'conic':
+            found = []
+            P = (ecc.triangulate(uv_l, uv_r, g.fx, g.fy, g.cx, g.cy, g.baseline_m)
+                 if velocity is not None else None)
+            for s, offset in ((a, 0.0), (b, g.baseline_m)):
+                rows = s.region.row_max - s.region.row_min + 1
+                if s.est.conic is None or rows < cfg.conic_normal_min_rows:
+                    continue
+                T = np.array([[1.0, 0.0, -s.region.u0], [0.0, 1.0, -s.region.v0],
+                              [0.0, 0.0, 1.0]])
+                Q = T.T @ s.est.conic @ T
+                if P is not None and np.isfinite(P).all() and P[2] > 0:
+                    du, dv = db.image_velocity(P - [offset, 0.0, 0.0], velocity, g.fx,
+                                               g.fy) * cfg.row_time_s
+                    M = np.array([[1.0, -du, du * s.v], [0.0, 1.0 - dv, dv * s.v],
+                                  [0.0, 0.0, 1.0]])
+                    Mi = np.linalg.inv(M)
+                    Q = Mi.T @ Q @ Mi
+                n = ecc.pick_normal(ecc.normals_from_conic(Q, self.geom.K), self.normal_cam,
+                                    cfg.conic_normal_max_angle_deg)
+                if n is not None:
+                    found.append(n)
+            if found:
+                n = np.mean(found, axis=0)
+                return n / np.linalg.norm(n), 'conic'
+        return self.normal_cam, 'nominal'
+
+
+def _common_centre_row(a, b):
+    """Chord-fit centres of a pair re-evaluated on one shared centre row.
+
+    A rectified pair images the lamp on the same rows, so the two centre-row estimates
+    measure one quantity: their weighted mean is more precise, and evaluating both
+    midpoint lines on it makes the disparity immune to the centre-row error (the two
+    lines have nearly the same slope).
+    """
+    rows, lines = [], []
+    for s in (a, b):
+        info = s.est.info
+        rows.append((info['vbar'] + s.region.v0 + (s.est.v - info['vbar']),
+                     max(info['var_v'], 1e-12)))
+        lines.append(info)
+    w = np.array([1.0 / r[1] for r in rows])
+    v0 = float(np.dot(w, [r[0] for r in rows]) / w.sum())
+    var_v0 = 1.0 / w.sum()
+    out_uv, out_sigma = [], []
+    for s, info in zip((a, b), lines):
+        d = v0 - s.region.v0 - info['vbar']
+        jac = np.array([1.0, d])
+        u = info['a'] + info['k'] * d + s.region.u0
+        var_u = float(jac @ info['cov_line'] @ jac) + info['k'] ** 2 * var_v0
+        out_uv.append(np.array([u, v0]))
+        out_sigma.append(np.array([np.sqrt(var_u), np.sqrt(var_v0)]))
+    return out_uv[0], out_uv[1], out_sigma[0], out_sigma[1]

@@ -1,0 +1,426 @@
+"""``spot_locator_node``: sub-pixel lamp spot centres in both stereo images.
+
+Subscribes (relative names):
+
+* ``stereo/left/image_raw``, ``stereo/right/image_raw`` (sensor_msgs/Image: mono8,
+  mono16, 8UC1, 16UC1; rgb8/bgr8 are converted to grey; reliable, keep last 5): left
+  and right are paired by identical stamps.
+* ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
+  reliable, transient local, depth 1): the rectified geometry (P matrices, right
+  ``P[0,3] = −fx·b``). Images are skipped until both have arrived.
+* ``train/odometry`` (nav_msgs/Odometry; reliable, depth 10): train speed for the
+  exposure blur (|twist.linear|). Without a recent one the ``assumed_speed_mps``
+  parameter is used.
+
+Publishes:
+
+* ``spots/pairs`` (sensor_msgs/PointCloud2; reliable, depth 10): one point per matched
+  lamp spot pair, header = the images' header; fields in :mod:`.conversions` and
+  docs/arch/spot_locator.md.
+* ``diagnostics`` (diagnostic_msgs/DiagnosticArray; reliable, depth 10), once per
+  ``diagnostics_period_s`` (steady clock): frames processed/skipped/dropped, processing
+  time, spots and pairs.
+
+Threads: callbacks only convert and pair messages; a worker thread runs the image
+processing from a drop-oldest queue of ``queue_depth`` stereo pairs, so the executor
+never blocks on image work. Bad input (unknown encoding, empty or truncated image,
+left/right size mismatch, unpaired or out-of-order stamps) gives a throttled warning and
+is skipped.
+"""
+from collections import deque, OrderedDict
+from dataclasses import dataclass
+import sys
+import threading
+import time
+
+import cv2
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+import numpy as np
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from vlc_stereo_camera.core.camera import mount_rotation, StereoRig
+
+from . import conversions
+from .core.centres import ChordConfig
+from .core.detection import DetectConfig
+from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
+from .core.matching import MatchConfig
+
+EXIT_INVALID_CONFIG = 2
+_WARN_PERIOD_S = 2.0
+
+
+def _desc(text, lo=None, hi=None, integer=False, ptype=None):
+    d = ParameterDescriptor(description=text)
+    if ptype is not None:
+        d.type = ptype
+    if lo is not None:
+        if integer:
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+_STR = ParameterType.PARAMETER_STRING
+_DARR = ParameterType.PARAMETER_DOUBLE_ARRAY
+# name, default, descriptor. Documented key by key in config/spot_locator_node.yaml.
+# The mounting defaults are the rig's (StereoRig), so both follow one definition.
+NODE_PARAMETERS = (
+    ('method', 'chord', _desc('Centre estimator: ' + ' | '.join(METHODS) + '.', ptype=_STR)),
+    ('eccentricity', 'conic', _desc('Perspective eccentricity correction: '
+                                    + ' | '.join(ECCENTRICITY_MODES) + '.', ptype=_STR)),
+    ('lamp_diameter_m', 0.2, _desc('Lamp disc diameter, m.', 0.01, 2.0)),
+    ('lamp_normal_map', [0.0, -1.0, 0.0], _desc('Unit disc normal of the lamps in map '
+                                                '(into the tunnel).', ptype=_DARR)),
+    ('placement_angle_deg', StereoRig.placement_angle_deg,
+     _desc('Camera optical axis turned from the wall normal toward the running direction '
+           '(paper eq. 16), deg.', 0.0, 89.0)),
+    ('pitch_deg', StereoRig.pitch_deg,
+     _desc('Camera optical axis tilted down, deg.', -60.0, 80.0)),
+    ('conic_normal_min_rows', 30, _desc('Spots at least this many rows tall give their own '
+                                        'disc normal for the eccentricity correction.',
+                                        3, 4096, integer=True)),
+    ('conic_normal_max_angle_deg', 20.0, _desc('A measured disc normal further than this '
+                                               'from the nominal one is not used, deg.',
+                                               0.0, 90.0)),
+    ('rolling_shutter_model', True, _desc('When the train moves, correct each centre with the '
+                                          'rolling-shutter model of the moving lamp (its '
+                                          'image moves and grows during the readout).')),
+    ('wiener', False, _desc('Wiener-deconvolve the exposure motion blur before measuring.')),
+    ('wiener_balance', 0.02, _desc('Wiener-Hunt regularisation weight (skimage balance).',
+                                   1e-6, 10.0)),
+    ('min_blur_px', 0.3, _desc('Blur length below which deblurring is skipped, px.',
+                               0.0, 100.0)),
+    ('assumed_speed_mps', 0.0, _desc('Train speed used for the blur when no recent '
+                                     'train/odometry arrived, m/s.', 0.0, 100.0)),
+    ('odometry_timeout_s', 1.0, _desc('train/odometry older than this (receipt time) is '
+                                      'ignored, s.', 0.0, 3600.0)),
+    ('row_time_s', 30e-6, _desc('Rolling-shutter line time, s.', 1e-7, 1e-3)),
+    ('exposure_s', 25e-6, _desc('Exposure time of each row, s.', 1e-7, 0.1)),
+    ('vignetting', 'cos4', _desc("Lens fall-off removed before measuring: 'cos4' | 'none'.",
+                                 ptype=_STR)),
+    ('threshold_snr', 6.0, _desc('Detection threshold above background, noise sigmas.',
+                                 1.0, 1000.0)),
+    ('min_threshold_dn', 8.0, _desc('Lower bound of the detection threshold above '
+                                    'background, DN.', 0.0, 65535.0)),
+    ('closing_rows', 13, _desc('Height of the vertical closing that joins stripes, rows '
+                               '(> longest dark run: 3 chips / (chip_rate * row_time)).',
+                               1, 1000, integer=True)),
+    ('min_area_px', 6, _desc('Smallest spot, px.', 1, 1000000, integer=True)),
+    ('max_spots', 16, _desc('Largest number of spots per image.', 1, 1000, integer=True)),
+    ('reject_border_spots', True, _desc('Drop spots that touch the image border.')),
+    ('max_row_diff_px', 3.0, _desc('Matching: allowed difference of the spots\' centre rows, '
+                                   'px.', 0.0, 100.0)),
+    ('min_row_overlap', 0.5, _desc('Matching: the shorter spot\'s row span must overlap the '
+                                   'other by this fraction.', 0.0, 1.0)),
+    ('min_disparity_px', 2.0, _desc('Matching: smallest disparity, px.', 0.0, 10000.0)),
+    ('max_disparity_px', 400.0, _desc('Matching: largest disparity, px.', 0.0, 10000.0)),
+    ('max_area_ratio', 2.0, _desc('Matching: largest spot area ratio.', 1.0, 100.0)),
+    ('queue_depth', 2, _desc('Stereo pairs waiting for the worker; the oldest is dropped.',
+                             1, 100, integer=True)),
+    ('max_pending_stamps', 10, _desc('Unpaired images kept per side while waiting for the '
+                                     'other side.', 1, 1000, integer=True)),
+    ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.',
+                                        0.05, 3600.0)),
+)
+
+
+@dataclass
+class SpotLocatorNodeConfig:
+    """Typed node parameters (see NODE_PARAMETERS for meaning and units)."""
+
+    method: str
+    eccentricity: str
+    lamp_diameter_m: float
+    lamp_normal_map: list
+    placement_angle_deg: float
+    pitch_deg: float
+    conic_normal_min_rows: int
+    conic_normal_max_angle_deg: float
+    rolling_shutter_model: bool
+    wiener: bool
+    wiener_balance: float
+    min_blur_px: float
+    assumed_speed_mps: float
+    odometry_timeout_s: float
+    row_time_s: float
+    exposure_s: float
+    vignetting: str
+    threshold_snr: float
+    min_threshold_dn: float
+    closing_rows: int
+    min_area_px: int
+    max_spots: int
+    reject_border_spots: bool
+    max_row_diff_px: float
+    min_row_overlap: float
+    min_disparity_px: float
+    max_disparity_px: float
+    max_area_ratio: float
+    queue_depth: int
+    max_pending_stamps: int
+    diagnostics_period_s: float
+
+    def locator_config(self):
+        """The core LocatorConfig (ValueError if the parameters are inconsistent)."""
+        normal_map = np.asarray(self.lamp_normal_map, float)
+        if normal_map.shape != (3,) or not np.linalg.norm(normal_map) > 0:
+            raise ValueError('lamp_normal_map must be a non-zero 3-vector')
+        if self.min_disparity_px >= self.max_disparity_px:
+            raise ValueError('min_disparity_px must be < max_disparity_px')
+        R_base_cam = mount_rotation(self.placement_angle_deg, self.pitch_deg)
+        # Nominal attitude (straight track, no vibration): base_link axes = map axes.
+        normal_cam = R_base_cam.T @ (normal_map / np.linalg.norm(normal_map))
+        # Lamps move backwards past the train: -x of base_link, in the optical frame.
+        velocity_cam = R_base_cam.T @ np.array([-1.0, 0.0, 0.0])
+        return LocatorConfig(
+            method=self.method, eccentricity=self.eccentricity,
+            lamp_radius_m=0.5 * self.lamp_diameter_m, normal_cam=tuple(normal_cam),
+            conic_normal_min_rows=self.conic_normal_min_rows,
+            conic_normal_max_angle_deg=self.conic_normal_max_angle_deg,
+            rolling_shutter_model=self.rolling_shutter_model,
+            wiener=self.wiener, wiener_balance=self.wiener_balance,
+            min_blur_px=self.min_blur_px, train_velocity_cam_mps=tuple(velocity_cam),
+            row_time_s=self.row_time_s, exposure_s=self.exposure_s,
+            reject_border_spots=self.reject_border_spots, vignetting=self.vignetting,
+            detect=DetectConfig(threshold_snr=self.threshold_snr,
+                                min_threshold_dn=self.min_threshold_dn,
+                                closing_rows=self.closing_rows, min_area_px=self.min_area_px,
+                                max_spots=self.max_spots),
+            chord=ChordConfig(),
+            match=MatchConfig(max_row_diff_px=self.max_row_diff_px,
+                              min_row_overlap=self.min_row_overlap,
+                              min_disparity_px=self.min_disparity_px,
+                              max_disparity_px=self.max_disparity_px,
+                              max_area_ratio=self.max_area_ratio))
+
+
+def _stamp_ns(stamp):
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+class SpotLocatorNode(Node):
+    """See the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('spot_locator_node', **kwargs)
+        for name, default, descriptor in NODE_PARAMETERS:
+            self.declare_parameter(name, default, descriptor)
+        self.config = cfg = SpotLocatorNodeConfig(
+            **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
+        self.locator_config = cfg.locator_config()
+        # (StereoGeometry, SpotLocator), swapped as one reference for the worker thread
+        self._located = None
+        self._infos = [None, None]
+
+        self._lock = threading.Lock()
+        self._pending = (OrderedDict(), OrderedDict())
+        self._queue = deque()
+        self._wake = threading.Condition(self._lock)
+        self._stop = False
+        self._last_stamp_ns = -1
+        self._speed = (cfg.assumed_speed_mps, -np.inf)
+        self._stats = dict(frames=0, pairs=0, dropped=0, bad_image=0, unpaired=0,
+                           out_of_order=0, no_camera_info=0, size_mismatch=0, failed=0,
+                           unmatched=0, border=0)
+        self._proc_ms = deque(maxlen=200)
+
+        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        for side, index in (('left', 0), ('right', 1)):
+            self.create_subscription(Image, f'stereo/{side}/image_raw',
+                                     lambda msg, i=index: self._on_image(i, msg), image_qos)
+            self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
+                                     lambda msg, i=index: self._on_info(i, msg), latched)
+        self.create_subscription(Odometry, 'train/odometry', self._on_odometry, 10)
+        self.pub_pairs = self.create_publisher(PointCloud2, 'spots/pairs', 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics,
+                          clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._worker = threading.Thread(target=self._work, name='spot_worker', daemon=True)
+        self._worker.start()
+        self.get_logger().info(f'spot locator: method {cfg.method}, eccentricity '
+                               f'{cfg.eccentricity}, wiener {cfg.wiener}')
+
+    # ------------------------------------------------------------ callbacks
+    def _warn(self, text):
+        self.get_logger().warning(text, throttle_duration_sec=_WARN_PERIOD_S)
+
+    def _count(self, key, n=1):
+        with self._lock:
+            self._stats[key] += n
+
+    def _on_info(self, index, msg):
+        self._infos[index] = msg
+        if self._infos[0] is None or self._infos[1] is None:
+            return
+        try:
+            geometry = conversions.stereo_geometry(*self._infos)
+        except ValueError as exc:
+            self._warn(f'camera_info unusable, keeping the previous geometry: {exc}')
+            return
+        if self._located is None or geometry != self._located[0]:
+            self._located = (geometry, SpotLocator(self.locator_config, geometry))
+
+    def _on_odometry(self, msg):
+        v = msg.twist.twist.linear
+        speed = float(np.sqrt(v.x * v.x + v.y * v.y + v.z * v.z))
+        if np.isfinite(speed):
+            self._speed = (speed, time.monotonic())
+        else:
+            self._warn('train/odometry speed is not finite; ignored')
+
+    def _on_image(self, index, msg):
+        stamp = _stamp_ns(msg.header.stamp)
+        other = 1 - index
+        with self._lock:
+            if stamp <= self._last_stamp_ns:
+                self._stats['out_of_order'] += 1
+                late = True
+            else:
+                late = False
+                partner = self._pending[other].pop(stamp, None)
+                if partner is None:
+                    pending = self._pending[index]
+                    pending[stamp] = msg
+                    overflow = len(pending) - self.config.max_pending_stamps
+                    for _ in range(max(overflow, 0)):
+                        pending.popitem(last=False)
+                        self._stats['unpaired'] += 1
+                else:
+                    pair = (msg, partner) if index == 0 else (partner, msg)
+                    # everything older than a completed pair can no longer be paired
+                    stale = 0
+                    for side in self._pending:
+                        for old in [s for s in side if s < stamp]:
+                            del side[old]
+                            stale += 1
+                    self._stats['unpaired'] += stale
+                    self._last_stamp_ns = stamp
+                    if len(self._queue) >= self.config.queue_depth:
+                        self._queue.popleft()
+                        self._stats['dropped'] += 1
+                    self._queue.append(pair)
+                    self._wake.notify()
+        if late:
+            self._warn(f'image stamp {stamp} ns is not newer than the last paired stamp; '
+                       'skipped')
+
+    # ------------------------------------------------------------ worker
+    def _work(self):
+        while True:
+            with self._wake:
+                while not self._queue and not self._stop:
+                    self._wake.wait()
+                if self._stop:
+                    return
+                left_msg, right_msg = self._queue.popleft()
+            try:
+                self._process(left_msg, right_msg)
+            except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node
+                self._count('failed')
+                self._warn(f'frame processing failed, skipped: {exc!r}')
+
+    def _process(self, left_msg, right_msg):
+        located = self._located
+        if located is None:
+            self._count('no_camera_info')
+            self._warn('no camera_info for both cameras yet; stereo pair skipped')
+            return
+        try:
+            left = conversions.image_to_array(left_msg)
+            right = conversions.image_to_array(right_msg)
+        except ValueError as exc:
+            self._count('bad_image')
+            self._warn(f'bad image, stereo pair skipped: {exc}')
+            return
+        if left.shape != right.shape:
+            self._count('size_mismatch')
+            self._warn(f'left {left.shape} and right {right.shape} image sizes differ; '
+                       'stereo pair skipped')
+            return
+        g, locator = located
+        if left.shape != (g.height, g.width):
+            self._count('size_mismatch')
+            self._warn(f'image size {left.shape[::-1]} differs from camera_info '
+                       f'{(g.width, g.height)}; stereo pair skipped')
+            return
+        speed, received = self._speed
+        if time.monotonic() - received > self.config.odometry_timeout_s:
+            speed = self.config.assumed_speed_mps
+        result = locator.process(left, right, speed)
+        records = conversions.pairs_to_records(result.pairs)
+        self.pub_pairs.publish(conversions.records_to_cloud(records, left_msg.header))
+        with self._lock:
+            self._stats['frames'] += 1
+            self._stats['pairs'] += len(result.pairs)
+            self._stats['unmatched'] += result.unmatched_left + result.unmatched_right
+            self._stats['border'] += result.rejected_border
+            self._stats['failed'] += result.failed
+            self._proc_ms.append(1e3 * result.processing_s)
+
+    # ------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self):
+        with self._lock:
+            stats = dict(self._stats)
+            proc = np.array(self._proc_ms)
+        skipped = (stats['bad_image'] + stats['size_mismatch'] + stats['out_of_order']
+                   + stats['no_camera_info'])
+        status = DiagnosticStatus(name=f'{self.get_name()}: spots', hardware_id='stereo_camera',
+                                  level=DiagnosticStatus.OK, message='locating spots')
+        if self._located is None:
+            status.level, status.message = DiagnosticStatus.WARN, 'waiting for camera_info'
+        elif skipped or stats['unpaired'] or stats['dropped']:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'some images skipped, unpaired or dropped'
+        values = dict(stats)
+        values['processing_ms_median'] = f'{np.median(proc):.2f}' if proc.size else 'nan'
+        values['processing_ms_max'] = f'{proc.max():.2f}' if proc.size else 'nan'
+        values['speed_mps'] = f'{self._speed[0]:.3f}'
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(msg)
+
+    def destroy_node(self):
+        with self._wake:
+            self._stop = True
+            self._wake.notify_all()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args=None):
+    # one core: the stereo pair is processed in a single thread by design
+    cv2.setNumThreads(1)
+    rclpy.init(args=args)
+    try:
+        node = SpotLocatorNode()
+    except (ParameterException, ValueError) as exc:
+        rclpy.logging.get_logger('spot_locator_node').fatal(
+            f'invalid configuration, not starting: {exc}')
+        rclpy.try_shutdown()
+        sys.exit(EXIT_INVALID_CONFIG)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,158 @@
+"""Each centre method against analytic spots with exact truth; the circularity weight."""
+import numpy as np
+import pytest
+
+from spot_locator.core import centres as cm
+from spot_locator.core import synth
+from spot_locator.core.detection import detect_spots
+from spot_locator.core.locator import METHODS, LocatorConfig, SpotLocator
+
+SHAPE = (90, 80)
+
+
+def _locators():
+    return {m: SpotLocator(LocatorConfig(method=m, eccentricity='off', vignetting='none'))
+            for m in METHODS}
+
+
+def _errors(make_spot, seeds, noise=1.0):
+    """RMS (u, v) error per method over spots made by ``make_spot(rng) -> (img, truth)``."""
+    locators = _locators()
+    errs = {m: [] for m in METHODS}
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        img, truth = make_spot(rng)
+        regions = detect_spots(synth.add_noise(img, rng, read_noise=noise))
+        assert len(regions) == 1
+        for m, loc in locators.items():
+            spot = loc.measure(regions[0], regions[0].roi)
+            assert spot is not None, m
+            errs[m].append([spot.u - truth[0], spot.v - truth[1]])
+    return {m: np.sqrt(np.mean(np.square(e), axis=0)) for m, e in errs.items()}
+
+
+def _centre(rng):
+    return np.array([40.0, 45.0]) + rng.uniform(-0.5, 0.5, 2)
+
+
+def test_gaussian_spot_every_method_finds_the_mean():
+    def make(rng):
+        c = _centre(rng)
+        cov = np.array([[5.0, 1.5], [1.5, 9.0]])
+        return synth.gaussian_spot(SHAPE, c, cov, peak=200.0), c
+    rms = _errors(make, range(8))
+    for m in ('centroid', 'ellipse', 'fused'):
+        assert np.all(rms[m] < 0.03), (m, rms[m])
+    # no stripes, no edges: the chord fit falls back to the signal-weighted row
+    assert np.all(rms['chord'] < 0.05), rms['chord']
+
+
+def test_uniform_ellipse_every_method_finds_the_centre():
+    def make(rng):
+        c = _centre(rng)
+        return synth.ellipse_spot(SHAPE, c, (7.0, 18.0), np.radians(75.0), level=180.0), c
+    rms = _errors(make, range(8))
+    for m in METHODS:
+        assert np.all(rms[m] < 0.03), (m, rms[m])
+
+
+def test_striped_ellipse_chord_fit_is_unbiased_and_beats_the_paper_methods():
+    """Rolling-shutter stripes (dark rows at 5 %) cut the spot's tips unevenly."""
+    def make(rng):
+        c = _centre(rng)
+        img = synth.ellipse_spot(SHAPE, c, (7.0, 18.0), np.radians(75.0), level=180.0)
+        gain = synth.square_wave_rows(SHAPE[0], 6.7, phase_rows=rng.uniform(0, 6.7))
+        return img * gain[:, None], c
+    rms = _errors(make, range(12))
+    assert np.all(rms['chord'] < 0.06), rms['chord']
+    for m in ('centroid', 'ellipse', 'fused'):
+        assert rms['chord'][0] < 0.5 * rms[m][0], (m, rms)
+
+
+def test_chord_fit_on_a_striped_perspective_disc_finds_the_ellipse_centre():
+    K = np.array([[1040.0, 0, 60.0], [0, 1040.0, 60.0], [0, 0, 1]])
+    normal = np.array([0.75, 0.29, -0.59])
+    normal /= np.linalg.norm(normal)
+    errs = []
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        centre = np.array(rng.uniform(-0.05, 0.05, 3)) + [0.0, 0.0, 3.5]
+        Q = synth.disc_conic(K, centre, normal, 0.1)
+        img = synth.render_disc((120, 120), K, centre, normal, 0.1, radiance=150.0,
+                                level=synth.random_chip_level(rng),
+                                exposure=synth.Exposure(t0_s=rng.uniform(0, 0.1), n_time=4),
+                                supersample=5)
+        region = detect_spots(synth.add_noise(img, rng, read_noise=1.5))[0]
+        est = cm.chord_fit(region.roi, region.support, region.noise_sigma)
+        errs.append([est.u + region.u0, est.v + region.v0] - synth.conic_centre(Q))
+        assert est.conic is not None and est.info['v_from_width']
+    rms = np.sqrt(np.mean(np.square(errs), axis=0))
+    assert rms[0] < 0.05 and rms[1] < 0.15, rms
+
+
+def test_chord_fit_reports_a_plausible_uncertainty():
+    """The reported σu is of the order of the actual scatter (within a factor of 3)."""
+    errs, sigmas = [], []
+    for seed in range(16):
+        rng = np.random.default_rng(100 + seed)
+        c = _centre(rng)
+        img = synth.ellipse_spot(SHAPE, c, (5.0, 14.0), np.radians(80.0), level=120.0)
+        region = detect_spots(synth.add_noise(img, rng, read_noise=3.0))[0]
+        est = cm.chord_fit(region.roi, region.support, region.noise_sigma)
+        errs.append(est.u + region.u0 - c[0])
+        sigmas.append(est.sigma_u)
+    actual = np.sqrt(np.mean(np.square(errs)))
+    assert actual / 3 < np.median(sigmas) < 3 * actual, (actual, np.median(sigmas))
+
+
+def _polygon(a, b, n=2000):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.column_stack([a * np.cos(t), b * np.sin(t)])
+
+
+def _ramanujan_alpha(a, b):
+    perimeter = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
+    return 4 * np.pi * np.pi * a * b / perimeter ** 2
+
+
+def test_circularity_of_known_shapes():
+    assert cm.circularity(_polygon(10, 10)) == pytest.approx(1.0, abs=1e-5)
+    assert cm.circularity(_polygon(10, 5)) == pytest.approx(_ramanujan_alpha(10, 5), abs=1e-4)
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    assert cm.circularity(square) == pytest.approx(np.pi / 4, abs=1e-9)
+    assert cm.circularity(np.zeros((2, 2))) == 0.0
+    # the fitted-ellipse form agrees with the polygon form
+    Q = cm._conic_from_params(3.0, 4.0, 10.0, 5.0, 0.3)
+    assert cm.ellipse_circularity(Q) == pytest.approx(cm.circularity(_polygon(10, 5)), abs=1e-4)
+
+
+def test_circularity_of_a_rasterised_disc_is_near_one():
+    img = synth.ellipse_spot((60, 60), (30.2, 29.7), (15.0, 15.0), 0.0, level=200.0)
+    contour = cm.spot_contour(img, 100.0)
+    assert cm.circularity(contour) > 0.99
+    img = synth.ellipse_spot((60, 60), (30.2, 29.7), (20.0, 5.0), 0.4, level=200.0)
+    assert cm.circularity(cm.spot_contour(img, 100.0)) == pytest.approx(
+        _ramanujan_alpha(20, 5), abs=0.02)
+
+
+def test_fusion_weights_the_centroid_by_circularity():
+    c = cm.CentreEstimate(1.0, 2.0, 0.1, 0.1, True)
+    e = cm.CentreEstimate(3.0, 6.0, 0.2, 0.2, True, conic=np.eye(3))
+    f = cm.fuse_by_circularity(c, e, 1.0)
+    assert (f.u, f.v) == (1.0, 2.0)
+    f = cm.fuse_by_circularity(c, e, 0.0)
+    assert (f.u, f.v) == (3.0, 6.0)
+    f = cm.fuse_by_circularity(c, e, 0.25)
+    assert (f.u, f.v) == pytest.approx((2.5, 5.0))
+    assert cm.fuse_by_circularity(cm.CentreEstimate(), e, 0.5) is e
+    assert cm.fuse_by_circularity(c, cm.CentreEstimate(), 0.5) is c
+
+
+def test_closing_joins_stripes_without_eating_the_tips():
+    img = synth.ellipse_spot((60, 30), (15.0, 30.0), (6.0, 20.0), np.pi / 2, level=100.0)
+    striped = img * synth.square_wave_rows(60, 8.0, duty=0.5, off_level=0.0)[:, None]
+    closed = cm.close_stripes(striped, 9)
+    rows_lit = np.nonzero(striped.max(axis=1) > 50)[0]
+    rows_closed = np.nonzero(closed.max(axis=1) > 50)[0]
+    assert rows_closed[0] == rows_lit[0] and rows_closed[-1] == rows_lit[-1]
+    assert len(rows_closed) == rows_closed[-1] - rows_closed[0] + 1   # no gaps left

@@ -1,0 +1,198 @@
+"""The whole per-frame pipeline on synthetic rolling-shutter stereo pairs of the rig."""
+import numpy as np
+import pytest
+
+from spot_locator.core import locator as loc_mod
+from spot_locator.core import synth
+from spot_locator.core.locator import LocatorConfig, SpotLocator, StereoGeometry
+from vlc_stereo_camera.core.camera import StereoRig
+
+RIG = StereoRig()
+K = RIG.intrinsics.K
+SHAPE = (RIG.intrinsics.height, RIG.intrinsics.width)
+NORMAL_CAM = RIG.R_base_cam.T @ np.array([0.0, -1.0, 0.0])
+LAMP_VELOCITY_CAM = RIG.R_base_cam.T @ np.array([-1.0, 0.0, 0.0])   # per m/s of train speed
+
+
+def _config(**kw):
+    base = dict(normal_cam=tuple(NORMAL_CAM), vignetting='none',
+                train_velocity_cam_mps=tuple(LAMP_VELOCITY_CAM))
+    base.update(kw)
+    return LocatorConfig(**base)
+
+
+def _lamp_cam(along_m):
+    """Lamp centre in the left and right optical frames, lamp `along_m` ahead."""
+    p = np.array([[along_m, 2.5, 1.4]])
+    return (RIG.to_camera(p, np.zeros(3), np.eye(3), 0)[0],
+            RIG.to_camera(p, np.zeros(3), np.eye(3), 1)[0])
+
+
+def _render_pair(rng, lamps_along_m, speed_mps=0.0, drop_right=()):
+    """Striped, PSF-blurred, noisy stereo pair; returns images and per-lamp truth."""
+    level = synth.random_chip_level(rng)
+    phase = rng.uniform(0.0, 0.1)
+    exposure = synth.Exposure(n_time=4)
+    vel = LAMP_VELOCITY_CAM * speed_mps
+    images = [np.zeros(SHAPE), np.zeros(SHAPE)]
+    truth = []
+    for i, along in enumerate(lamps_along_m):
+        cams = _lamp_cam(along)
+        for side, C in enumerate(cams):
+            if side == 1 and i in drop_right:
+                continue
+            images[side] += synth.render_disc(
+                SHAPE, K, C, NORMAL_CAM, 0.1, radiance=150.0, velocity_cam_mps=vel,
+                level=lambda t: level(t + phase), exposure=exposure, supersample=4,
+                psf_sigma_px=0.7, halo_sigma_px=6.0, halo_fraction=0.02)
+        truth.append(cams)
+    return [synth.add_noise(img, rng, read_noise=1.5) for img in images], truth
+
+
+def _truth_uv(cams, t_s=0.0, speed_mps=0.0):
+    vel = LAMP_VELOCITY_CAM * speed_mps
+    return [synth.projected_centre_at(K, C, vel, t_s) for C in cams]
+
+
+def _match(pairs, uv_left):
+    best = min(pairs, key=lambda p: np.hypot(*(p.uv_left - uv_left)))
+    assert np.hypot(*(best.uv_left - uv_left)) < 3.0
+    return best
+
+
+def test_static_pairs_meet_the_centre_and_disparity_targets():
+    """Chord fit + eccentricity correction against the true projected disc centres."""
+    locator = SpotLocator(_config())
+    du, dd = [], []
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        (left, right), truth = _render_pair(rng, [2.0, 6.0])
+        result = locator.process(left, right)
+        assert len(result.pairs) == 2
+        for cams in truth:
+            uv_l, uv_r = _truth_uv(cams)
+            p = _match(result.pairs, uv_l)
+            du += [p.uv_left[0] - uv_l[0], p.uv_right[0] - uv_r[0]]
+            dd.append(p.disparity - (uv_l[0] - uv_r[0]))
+            assert p.flags & loc_mod.FLAG_METHOD_MASK == loc_mod.METHODS.index('chord')
+            assert p.flags & (loc_mod.FLAG_ECC_CONIC | loc_mod.FLAG_ECC_NOMINAL)
+            assert np.all(np.isfinite(p.sigma_left)) and np.all(p.sigma_left > 0)
+            assert p.sigma_disparity > 0
+    assert np.sqrt(np.mean(np.square(du))) < 0.05, du
+    assert abs(np.mean(dd)) < 0.02 and np.max(np.abs(dd)) < 0.05, dd
+
+
+def test_without_the_eccentricity_correction_near_lamps_are_biased():
+    (left, right), truth = _render_pair(np.random.default_rng(7), [1.5])
+    uv_l, _ = _truth_uv(truth[0])
+    on = _match(SpotLocator(_config()).process(left, right).pairs, uv_l)
+    off = _match(SpotLocator(_config(eccentricity='off')).process(left, right).pairs, uv_l)
+    assert abs(on.uv_left[0] - uv_l[0]) < 0.1
+    assert abs(off.uv_left[0] - uv_l[0]) > 0.3
+    np.testing.assert_allclose(off.uv_left - on.uv_left, on.offset_left, atol=1e-9)
+
+
+def test_moving_train_pairs_are_stamped_at_their_centre_row():
+    speed = 120 / 3.6
+    rng = np.random.default_rng(11)
+    (left, right), truth = _render_pair(rng, [2.0], speed_mps=speed)
+    cfg = _config()
+    p = SpotLocator(cfg).process(left, right, speed).pairs[0]
+    assert p.flags & loc_mod.FLAG_ROLLING_SHUTTER
+    # the stamp offset is the exposure mid-time of the reported centre's row ...
+    assert p.stamp_offset_s == pytest.approx(p.uv_left[1] * cfg.row_time_s
+                                             + 0.5 * cfg.exposure_s, abs=1e-9)
+    # ... and the centre is the lamp's projection at that instant
+    uv_l, uv_r = _truth_uv(truth[0], p.stamp_offset_s, speed)
+    assert abs(p.uv_left[0] - uv_l[0]) < 0.1
+    assert abs(p.uv_left[1] - uv_l[1]) < 0.3
+    assert abs(p.disparity - (uv_l[0] - uv_r[0])) < 0.03
+    # the static correction alone leaves the rolling-shutter distortion of a near lamp
+    q = SpotLocator(_config(rolling_shutter_model=False)).process(left, right, speed).pairs[0]
+    uv_q, _ = _truth_uv(truth[0], q.stamp_offset_s, speed)
+    assert abs(q.uv_left[0] - uv_q[0]) > 3 * abs(p.uv_left[0] - uv_l[0])
+    assert p.blur_px == 0.0     # deblurring off: no blur prediction
+    q = SpotLocator(_config(wiener=True)).process(left, right, speed).pairs[0]
+    assert 0.1 < q.blur_px < 1.0
+
+
+def test_vignetted_and_saturated_spots_are_flat_fielded_without_bias():
+    """A bright near lamp: cos⁴ fall-off across the spot, then clipping at 255 DN."""
+    rng = np.random.default_rng(21)
+    level = synth.random_chip_level(rng)
+    yy, xx = np.indices(SHAPE)
+    cos2 = 1.0 / (1.0 + ((xx - K[0, 2]) / K[0, 0]) ** 2 + ((yy - K[1, 2]) / K[1, 1]) ** 2)
+    cams = _lamp_cam(1.0)
+    images = []
+    for C in cams:
+        img = synth.render_disc(SHAPE, K, C, NORMAL_CAM, 0.1, radiance=600.0, level=level,
+                                exposure=synth.Exposure(n_time=2), supersample=3,
+                                psf_sigma_px=0.7)
+        images.append(synth.add_noise(img * cos2 ** 2, rng, read_noise=1.5))
+    assert (images[0] == 255).sum() > 500
+    uv_l, uv_r = _truth_uv(cams)
+    p = SpotLocator(_config(vignetting='cos4')).process(*images).pairs[0]
+    q = SpotLocator(_config(vignetting='none')).process(*images).pairs[0]
+    assert abs(p.uv_left[0] - uv_l[0]) < 0.05 and abs(p.uv_right[0] - uv_r[0]) < 0.05
+    assert abs(p.disparity - (uv_l[0] - uv_r[0])) < 0.02
+    assert abs(q.uv_left[0] - uv_l[0]) > 3 * abs(p.uv_left[0] - uv_l[0])
+    # dividing the clipped plateau by the fall-off as well would fake a gradient
+    naive = SpotLocator(_config(vignetting='cos4'))
+    naive._flat_field = lambda region: region.roi / naive._cos4(region)
+    r = naive.process(*images).pairs[0]
+    assert abs(r.uv_left[0] - uv_l[0]) > 3 * abs(p.uv_left[0] - uv_l[0])
+
+
+def test_a_lamp_seen_by_one_camera_only_gives_no_pair():
+    (left, right), _ = _render_pair(np.random.default_rng(3), [2.0, 6.0], drop_right=(1,))
+    result = SpotLocator(_config()).process(left, right)
+    assert len(result.pairs) == 1
+    assert result.unmatched_left == 1 and result.unmatched_right == 0
+
+
+def test_spots_cut_by_the_image_border_are_rejected():
+    rng = np.random.default_rng(5)
+    (left, right), truth = _render_pair(rng, [2.0])
+    # roll the left spot's centre onto column 0: it is cut in two, both parts at a border
+    shift = int(round(_truth_uv(truth[0])[0][0]))
+    left = np.roll(left, -shift, axis=1)
+    right = np.roll(right, -shift, axis=1)
+    result = SpotLocator(_config()).process(left, right)
+    assert result.pairs == [] and result.rejected_border >= 2
+
+
+def test_the_chord_fit_keeps_a_spot_cut_by_the_bottom_edge():
+    """Rows stay complete when the image's bottom edge cuts the spot (lamp 0.5 m ahead)."""
+    (left, right), truth = _render_pair(np.random.default_rng(6), [2.0])
+    uv_l, uv_r = _truth_uv(truth[0])
+    cut = int(uv_l[1]) + 12       # the lower part of the ellipse falls off the image
+    result = SpotLocator(_config()).process(left[:cut], right[:cut])
+    assert len(result.pairs) == 1
+    p = result.pairs[0]
+    assert p.flags & loc_mod.FLAG_CUT_BY_BORDER
+    assert abs(p.uv_left[0] - uv_l[0]) < 0.2 and abs(p.disparity - (uv_l[0] - uv_r[0])) < 0.05
+    # the paper's methods need the whole spot
+    assert SpotLocator(_config(method='fused')).process(left[:cut], right[:cut]).pairs == []
+
+
+def test_every_method_runs_and_the_default_is_the_chord_fit():
+    assert LocatorConfig().method == 'chord'
+    (left, right), _ = _render_pair(np.random.default_rng(9), [3.0])
+    for method in loc_mod.METHODS:
+        pairs = SpotLocator(_config(method=method)).process(left, right).pairs
+        assert len(pairs) == 1
+        assert pairs[0].flags & loc_mod.FLAG_METHOD_MASK == loc_mod.METHODS.index(method)
+
+
+def test_bad_configuration_and_input_raise():
+    with pytest.raises(ValueError):
+        LocatorConfig(method='magic')
+    with pytest.raises(ValueError):
+        LocatorConfig(eccentricity='maybe')
+    with pytest.raises(ValueError):
+        LocatorConfig(normal_cam=(0.0, 0.0, 0.0))
+    locator = SpotLocator(_config(), StereoGeometry())
+    with pytest.raises(ValueError):
+        locator.process(np.zeros((720, 1280), np.uint8), np.zeros((720, 640), np.uint8))
+    empty = locator.process(np.zeros(SHAPE, np.uint8), np.zeros(SHAPE, np.uint8))
+    assert empty.pairs == [] and empty.n_left == 0

@@ -1,0 +1,33 @@
+"""The camera timing every node assumes must be the camera's: one value per key across
+the shipped parameter files (a mismatch mis-stamps spots or misreads chips)."""
+import pathlib
+
+import pytest
+import yaml
+
+SRC = pathlib.Path(__file__).resolve().parents[1] / 'src'
+FILES = {
+    'stereo_camera_node': SRC / 'vlc_stereo_camera/config/stereo_camera_node.yaml',
+    'vlc_decoder_node': SRC / 'vlc_decoder/config/vlc_decoder_node.yaml',
+    'spot_locator_node': SRC / 'spot_locator/config/spot_locator_node.yaml',
+    'train_localizer_node': SRC / 'train_localizer/config/train_localizer_node.yaml',
+}
+
+
+def _params(path):
+    data = yaml.safe_load(path.read_text())
+    return data['/**']['ros__parameters']
+
+
+@pytest.mark.parametrize('key', ['row_time_s', 'exposure_s', 'chip_rate_hz', 'fps',
+                                 'off_level'])
+def test_camera_timing_agrees_across_nodes(key):
+    values = {node: _params(path)[key] for node, path in FILES.items()
+              if key in _params(path)}
+    assert 'stereo_camera_node' in values or key == 'fps', values
+    assert len(set(values.values())) == 1, f'{key} differs between nodes: {values}'
+
+
+def test_system_runs_20_kchips_with_25_us_exposure():
+    cam = _params(FILES['stereo_camera_node'])
+    assert cam['chip_rate_hz'] == 20000.0 and cam['exposure_s'] == 2.5e-05
