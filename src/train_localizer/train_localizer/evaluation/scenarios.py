@@ -36,6 +36,7 @@ PROCESSING_NODES = [('imu_compensator', 'imu_compensator_node'),
                     ('spot_locator', 'spot_locator_node'),
                     ('train_localizer', 'train_localizer_node')]
 TEST_POINTS_M = tuple(np.round(np.arange(10.0, 0.0, -0.5), 1))
+IMU_TAIL_S = 0.5         # IMU samples beyond the last camera frame
 LAMP_X_M = 50.0          # the static protocol stands before the lamp at 50 m (UID 0x1005)
 
 
@@ -56,7 +57,7 @@ class Scenario:
     static_point_m: float = float('nan')
 
 
-def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=2.0, first_seed=1):
+def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=3.0, first_seed=1):
     return [Scenario(name=f'static_{d:04.1f}m_seed{seed}', motion_profile='stationary',
                      start_chainage_m=LAMP_X_M - d, seed=seed, duration_s=observe_s,
                      observe_s=observe_s, static_point_m=d)
@@ -93,8 +94,11 @@ def run_scenario(scenario, out_dir, domain_id, settle_wall_s=3.0):
         # decoder, spot locator and recorder to subscribe before simulated time starts.
         time.sleep(settle_wall_s)
         rig_files = [graph.config_file('vlc_stereo_camera', 'rig.yaml')]
+        # The IMU runs a little past the last frame, so the localizer can propagate its
+        # last fixes to a published pose (it publishes on the IMU's time grid).
         graph.start('vlc_stereo_camera', 'adis16488_node',
-                    dict(rig, duration_s=float(scenario.duration_s), wait_for_subscribers=1,
+                    dict(rig, duration_s=float(scenario.duration_s) + IMU_TAIL_S,
+                         wait_for_subscribers=1,
                          realtime_factor=float(scenario.realtime_factor)),
                     rig_files + [graph.config_file('vlc_stereo_camera', 'adis16488_node.yaml')])
         graph.start('vlc_stereo_camera', 'stereo_camera_node',
@@ -103,8 +107,10 @@ def run_scenario(scenario, out_dir, domain_id, settle_wall_s=3.0):
                     rig_files + [graph.config_file('vlc_stereo_camera',
                                                    'stereo_camera_node.yaml')])
         limit = 30.0 + 3.0 * scenario.duration_s / max(scenario.realtime_factor, 0.05)
-        if graph.wait('stereo_camera_node', limit) is None:
-            LOG.warning('%s: camera did not finish within %.0f s', scenario.name, limit)
+        for rig_node in ('stereo_camera_node', 'adis16488_node'):
+            if graph.wait(rig_node, limit) is None:
+                LOG.warning('%s: %s did not finish within %.0f s', scenario.name, rig_node,
+                            limit)
         time.sleep(1.0)                      # let the last fixes reach the recorder
     finally:
         graph.stop_all(last=('bag_recorder',))
