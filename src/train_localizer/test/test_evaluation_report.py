@@ -55,3 +55,19 @@ def test_scenario_lists_cover_the_protocols():
     dynamic = scenarios.dynamic_scenarios()
     assert len(dynamic) == 60
     assert {s.speed_kmh for s in dynamic} == {20.0, 40.0, 60.0, 80.0, 100.0, 120.0}
+
+
+def test_update_markdown_replaces_only_the_marked_section(tmp_path):
+    report.write_report(_static_results(), _dynamic_results(), tmp_path / 'out')
+    readme = tmp_path / 'README.md'
+    readme.write_text('# Title\n\nintro\n\n## Accuracy\n')
+    report.update_markdown(readme, tmp_path / 'out', 'run_evaluation --protocol demo')
+    first = readme.read_text()
+    assert first.startswith('# Title\n\nintro') and report.BEGIN_MARK in first
+    assert '](docs/evaluation/static_error_vs_distance.png)' in first
+    assert (tmp_path / 'docs/evaluation/static_error_vs_distance.png').exists()
+    readme.write_text(first + '\nafter\n')
+    report.update_markdown(readme, tmp_path / 'out', 'run_evaluation --protocol full')
+    second = readme.read_text()
+    assert second.count(report.BEGIN_MARK) == 1 and second.endswith('after\n')
+    assert '--protocol full' in second and '--protocol demo' not in second

@@ -56,6 +56,9 @@ def main(argv=None):
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
     parser.add_argument('--cells', type=int, default=3, help='dynamic: lamp cells per run')
     parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
+    parser.add_argument('--readme', default='',
+                        help='also write the report between the evaluation markers of this '
+                             'Markdown file (figures copied beside it under docs/evaluation)')
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
@@ -75,6 +78,10 @@ def main(argv=None):
                                title=f'Accuracy ({args.protocol} protocol)')
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
+    if args.readme:
+        command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
+        report.update_markdown(pathlib.Path(args.readme), out, command)
+        print(f'{args.readme}: evaluation section rewritten')
     return 0
 
 
