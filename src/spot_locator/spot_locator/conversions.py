@@ -32,11 +32,10 @@ field                                  type     offset  meaning
                                                         top or bottom image edge
 =====================================  =======  ======  =====================================
 """
-import array
 
 import cv2
 import numpy as np
-from sensor_msgs.msg import PointCloud2, PointField
+from vlc_stereo_camera.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
 
 from .core.locator import StereoGeometry
 
@@ -51,9 +50,6 @@ PAIR_DTYPE = np.dtype({
     'itemsize': 112,
 })
 
-_POINTFIELD_TYPE = {np.dtype('<u4'): PointField.UINT32, np.dtype('<f8'): PointField.FLOAT64,
-                    np.dtype('<f4'): PointField.FLOAT32}
-_NUMPY_TYPE = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4'}
 
 _CHANNELS = {'mono8': (np.uint8, 1), 'mono16': ('<u2', 1), '8UC1': (np.uint8, 1),
              '16UC1': ('<u2', 1), 'rgb8': (np.uint8, 3), 'bgr8': (np.uint8, 3)}
@@ -125,27 +121,3 @@ def pairs_to_records(pairs):
     return rec
 
 
-def records_to_cloud(records, header):
-    """Structured array → sensor_msgs/PointCloud2 with one named field per column."""
-    fields = [PointField(name=name, offset=records.dtype.fields[name][1],
-                         datatype=_POINTFIELD_TYPE[records.dtype.fields[name][0]], count=1)
-              for name in records.dtype.names]
-    data = array.array('B')
-    data.frombytes(records.tobytes())
-    return PointCloud2(header=header, height=1, width=len(records), fields=fields,
-                       is_bigendian=False, point_step=records.dtype.itemsize,
-                       row_step=records.dtype.itemsize * len(records), data=data,
-                       is_dense=True)
-
-
-def cloud_to_records(msg):
-    """sensor_msgs/PointCloud2 → structured array with the message's named fields."""
-    dtype = np.dtype({'names': [f.name for f in msg.fields],
-                      'formats': [_NUMPY_TYPE[f.datatype] for f in msg.fields],
-                      'offsets': [f.offset for f in msg.fields],
-                      'itemsize': msg.point_step})
-    n = msg.width * msg.height
-    buf = np.frombuffer(msg.data, dtype=np.uint8)
-    if buf.size < n * msg.point_step:
-        raise ValueError(f'point cloud data {buf.size} B < {n} x {msg.point_step}')
-    return np.frombuffer(buf[:n * msg.point_step].tobytes(), dtype=dtype)

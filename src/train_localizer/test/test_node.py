@@ -70,7 +70,7 @@ def lamps_msg(stamp_ns, observations):
         # The decoder's centre is coarser than the spot locator's.
         rec[i]['left_u'], rec[i]['left_v'] = o.uv_left[0] + 0.6, o.uv_left[1] - 0.4
         rec[i]['right_u'], rec[i]['right_v'] = o.uv_right
-    return decoder_conversions.array_to_cloud(rec, header(stamp_ns))
+    return decoder_conversions.records_to_cloud(rec, header(stamp_ns))
 
 
 class Harness:

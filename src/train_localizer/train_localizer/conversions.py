@@ -19,13 +19,10 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from sensor_msgs.msg import PointField
+from vlc_stereo_camera.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 
 from .core.observation import ImuSample, NS_PER_S
 
-_NUMPY_TYPE = {PointField.INT8: 'i1', PointField.UINT8: 'u1', PointField.INT16: 'i2',
-               PointField.UINT16: 'u2', PointField.INT32: 'i4', PointField.UINT32: 'u4',
-               PointField.FLOAT32: 'f4', PointField.FLOAT64: 'f8'}
 
 
 def stamp_to_ns(stamp):
@@ -37,36 +34,6 @@ def ns_to_stamp(ns):
     """Integer ns → builtin_interfaces/Time."""
     sec, nanosec = divmod(int(ns), NS_PER_S)
     return Time(sec=sec, nanosec=nanosec)
-
-
-def cloud_to_records(msg):
-    """sensor_msgs/PointCloud2 → structured array with the message's named fields.
-
-    Raises ValueError for an unknown field type, a field outside the point, or data
-    shorter than ``width·height`` points.
-    """
-    endian = '>' if msg.is_bigendian else '<'
-    names, formats, offsets = [], [], []
-    for f in msg.fields:
-        if f.datatype not in _NUMPY_TYPE:
-            raise ValueError(f'field {f.name!r}: unknown PointField datatype {f.datatype}')
-        fmt = np.dtype(endian + _NUMPY_TYPE[f.datatype])
-        if f.count > 1:
-            fmt = np.dtype((fmt, (f.count,)))
-        if f.offset + fmt.itemsize > msg.point_step:
-            raise ValueError(f'field {f.name!r} ends beyond point_step {msg.point_step}')
-        names.append(f.name)
-        formats.append(fmt)
-        offsets.append(f.offset)
-    if not names:
-        return np.zeros(0)
-    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
-                      'itemsize': msg.point_step})
-    n = int(msg.width) * int(msg.height)
-    buf = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    if buf.size < n * msg.point_step:
-        raise ValueError(f'point cloud data {buf.size} B < {n} points x {msg.point_step} B')
-    return np.frombuffer(buf[:n * msg.point_step].tobytes(), dtype=dtype)
 
 
 def require_fields(records, names, topic):

@@ -20,7 +20,7 @@ the left image's header, little endian, ``point_step`` 104):
 """
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from sensor_msgs.msg import PointCloud2, PointField
+from vlc_stereo_camera.pointcloud import records_to_cloud  # noqa: F401 (re-exported)
 
 FLAG_LEFT, FLAG_RIGHT, FLAG_LEFT_CUT, FLAG_RIGHT_CUT = 1, 2, 4, 8
 FLAG_READ_LEFT, FLAG_READ_RIGHT, FLAG_CONTENT_ALIGNED = 16, 32, 64
@@ -37,8 +37,6 @@ LAMP_DTYPE = np.dtype([
     ('right_v_max', '<f4'),
 ])
 
-_FIELD_TYPES = {np.dtype('<f8'): PointField.FLOAT64, np.dtype('<f4'): PointField.FLOAT32,
-                np.dtype('<u4'): PointField.UINT32}
 
 # encoding → (channels, bytes per channel, OpenCV conversion to gray or None)
 _ENCODINGS = {
@@ -120,25 +118,8 @@ def records_to_array(records, row_time_s, exposure_s):
     return out
 
 
-def array_to_cloud(array, header):
-    """Structured array → sensor_msgs/PointCloud2 (unordered: height 1)."""
-    msg = PointCloud2()
-    msg.header = header
-    msg.height = 1
-    msg.width = len(array)
-    msg.fields = [PointField(name=name, offset=array.dtype.fields[name][1],
-                             datatype=_FIELD_TYPES[array.dtype.fields[name][0]], count=1)
-                  for name in array.dtype.names]
-    msg.is_bigendian = False
-    msg.point_step = array.dtype.itemsize
-    msg.row_step = msg.point_step * msg.width
-    msg.is_dense = False
-    msg.data = array.tobytes()
-    return msg
-
-
 def cloud_to_array(msg):
-    """sensor_msgs/PointCloud2 written by :func:`array_to_cloud` → structured array."""
+    """A ``vlc/lamps`` PointCloud2 (written with ``records_to_cloud``) → LAMP_DTYPE array."""
     names = {f.name: f for f in msg.fields}
     if msg.point_step != LAMP_DTYPE.itemsize or set(names) != set(LAMP_DTYPE.names):
         raise ValueError('not a vlc/lamps cloud')

@@ -229,7 +229,7 @@ class VlcDecoderNode(Node):
         self.stats['frames_decoded'] += 1
         array = conversions.records_to_array(records, self.cfg.row_time_s,
                                              self.cfg.exposure_s)
-        self.pub_lamps.publish(conversions.array_to_cloud(array, left_msg.header))
+        self.pub_lamps.publish(conversions.records_to_cloud(array, left_msg.header))
         anomalies = {r.uid for r in records if r.state == ANOMALY}
         if anomalies - self.reported_anomalies:
             self.reported_anomalies |= anomalies

@@ -29,8 +29,10 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+
+from .pointcloud import cloud_to_records, records_to_cloud  # noqa: F401 (re-exported)
 
 SPOT_DTYPE = np.dtype({
     'names': ['uid', 'in_left', 'in_right', 'row_first', 'row_last', 'u_left', 'v_left',
@@ -41,9 +43,6 @@ SPOT_DTYPE = np.dtype({
     'itemsize': 96,
 })
 
-_POINTFIELD_TYPE = {np.dtype('<u4'): PointField.UINT32, np.dtype('<f8'): PointField.FLOAT64,
-                    np.dtype('<f4'): PointField.FLOAT32}
-_NUMPY_TYPE = {PointField.UINT32: '<u4', PointField.FLOAT64: '<f8', PointField.FLOAT32: '<f4'}
 
 
 def stamp_ns(epoch_s, t_rel_s=0.0):
@@ -128,27 +127,3 @@ def truth_records(truth, t0_s):
     return rec
 
 
-def records_to_cloud(records, hdr):
-    """Structured array → sensor_msgs/PointCloud2 with one named field per column."""
-    fields = [PointField(name=name, offset=records.dtype.fields[name][1],
-                         datatype=_POINTFIELD_TYPE[records.dtype.fields[name][0]], count=1)
-              for name in records.dtype.names]
-    data = array.array('B')
-    data.frombytes(records.tobytes())
-    return PointCloud2(header=hdr, height=1, width=len(records), fields=fields,
-                       is_bigendian=False, point_step=records.dtype.itemsize,
-                       row_step=records.dtype.itemsize * len(records), data=data,
-                       is_dense=True)
-
-
-def cloud_to_records(msg):
-    """sensor_msgs/PointCloud2 → structured array with the message's named fields."""
-    dtype = np.dtype({'names': [f.name for f in msg.fields],
-                      'formats': [_NUMPY_TYPE[f.datatype] for f in msg.fields],
-                      'offsets': [f.offset for f in msg.fields],
-                      'itemsize': msg.point_step})
-    n = msg.width * msg.height
-    buf = np.frombuffer(msg.data, dtype=np.uint8)
-    if buf.size < n * msg.point_step:
-        raise ValueError(f'point cloud data {buf.size} B < {n} x {msg.point_step}')
-    return np.frombuffer(buf[:n * msg.point_step].tobytes(), dtype=dtype)
