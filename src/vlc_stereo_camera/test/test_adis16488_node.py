@@ -172,6 +172,28 @@ def test_realtime_pacing_publishes_only_what_is_due(make_node, monkeypatch):
     assert stamps == [EPOCH_NS + n * 2_500_000 for n in range(53)]
 
 
+def test_follow_clock_starts_with_the_cameras_clock(make_node, monkeypatch):
+    from rosgraph_msgs.msg import Clock
+    wall = [100.0]
+    monkeypatch.setattr(adis16488_node, 'time', types.SimpleNamespace(monotonic=lambda: wall[0]))
+    node = make_node(rate_hz=400.0, realtime_factor=1.0, follow_clock=True)
+    assert _run(node, 3) == []                       # no /clock yet: simulated time held
+    tick = Clock()
+    tick.clock.sec, tick.clock.nanosec = 1704067200, 125_000_000   # camera at t = 0.125 s
+    node._on_clock(tick)
+    node._on_tick()
+    # t = 0 .. 0.125 s (51 samples) are due at once, the camera being 0.125 s into its
+    # run; one tick publishes at most one 40-sample block
+    assert len(node.sent) == 40
+    wall[0] += 0.0625
+    node._on_tick()
+    assert len(node.sent) == 76                      # t = 0 .. 0.1875 s
+    tick.clock.nanosec = 900_000_000                  # later ticks do not move the start
+    node._on_clock(tick)
+    node._on_tick()
+    assert len(node.sent) == 76
+
+
 def test_diagnostics_report_the_run(make_node):
     node = make_node(rate_hz=400.0, realtime_factor=0.0, seed=9)
     _run(node, 2)

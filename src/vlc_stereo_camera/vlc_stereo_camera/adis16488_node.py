@@ -38,6 +38,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
 from .core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
@@ -85,6 +86,10 @@ NODE_PARAMETERS = (
     ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until imu/data_raw has this '
                                       'many subscribers (0 = start at once).', 0, 100,
                                       integer=True)),
+    ('follow_clock', False, _desc('realtime_factor > 0: start simulated time with the '
+                                  'first /clock message (the camera publishes it) and pace '
+                                  'from that instant, so images and IMU samples of the same '
+                                  'simulated time are published together.')),
     ('imu_frame_id', 'imu_link', _desc('frame_id of the messages (axes of base_link).',
                                        ptype=ParameterType.PARAMETER_STRING)),
     ('lever_arm_m', [0.0, 0.0, 0.0], _desc('IMU position in base_link [x, y, z], m; adds '
@@ -131,6 +136,7 @@ class Adis16488NodeConfig:
     publish_period_s: float
     duration_s: float
     wait_for_subscribers: int
+    follow_clock: bool
     imu_frame_id: str
     lever_arm_m: tuple
     noise_enabled: bool
@@ -177,7 +183,7 @@ def read_config(node):
     return Adis16488NodeConfig(
         rate_hz=v['rate_hz'], realtime_factor=v['realtime_factor'],
         publish_period_s=v['publish_period_s'], duration_s=v['duration_s'],
-        wait_for_subscribers=v['wait_for_subscribers'],
+        wait_for_subscribers=v['wait_for_subscribers'], follow_clock=v['follow_clock'],
         imu_frame_id=v['imu_frame_id'], lever_arm_m=lever,
         noise_enabled=v['noise_enabled'], imu=imu, scenario=scenario)
 
@@ -212,6 +218,8 @@ class Adis16488Node(Node):
 
         self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        if cfg.follow_clock and cfg.realtime_factor > 0.0:
+            self._clock_sub = self.create_subscription(Clock, '/clock', self._on_clock, 10)
         period = cfg.publish_period_s if cfg.realtime_factor > 0.0 else ASAP_PERIOD_S
         self._timer = self.create_timer(period, self._on_tick)
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
@@ -232,6 +240,8 @@ class Adis16488Node(Node):
         else:
             now = time.monotonic()
             if self._wall_start is None:
+                if cfg.follow_clock:
+                    return 0, 0.0
                 if self._imu_pub.get_subscription_count() < cfg.wait_for_subscribers:
                     return 0, 0.0
                 self._wall_start = now
@@ -241,6 +251,15 @@ class Adis16488Node(Node):
         behind = due - self._next_index
         count = min(max(behind, 0), self._block)
         return count, (behind - count) / cfg.rate_hz
+
+    def _on_clock(self, msg):
+        """First /clock tick: simulated time t = clock − epoch began t/realtime s ago."""
+        if self._wall_start is not None:
+            return
+        cfg = self.config
+        t_rel_s = (msg.clock.sec * 1_000_000_000 + msg.clock.nanosec - self._epoch_ns) / 1e9
+        self._wall_start = time.monotonic() - max(t_rel_s, 0.0) / cfg.realtime_factor
+        self.get_logger().info(f'following /clock: simulated time {t_rel_s:.3f} s')
 
     def _on_tick(self):
         count, self._lag_s = self._due_count()

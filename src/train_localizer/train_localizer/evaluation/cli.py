@@ -56,6 +56,8 @@ def main(argv=None):
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
     parser.add_argument('--cells', type=int, default=3, help='dynamic: lamp cells per run')
     parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
+    parser.add_argument('--rescore', action='store_true',
+                        help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
                         help='also write the report between the evaluation markers of this '
                              'Markdown file (figures copied beside it under docs/evaluation)')
@@ -72,8 +74,10 @@ def main(argv=None):
         done[0] += 1
         _progress(done[0], len(total), name)
 
-    static_results = scenarios.run_protocol(static, out / 'static', lamps_x, progress)
-    dynamic_results = scenarios.run_protocol(dynamic, out / 'dynamic', lamps_x, progress)
+    static_results = scenarios.run_protocol(static, out / 'static', lamps_x, progress,
+                                            rescore=args.rescore)
+    dynamic_results = scenarios.run_protocol(dynamic, out / 'dynamic', lamps_x, progress,
+                                             rescore=args.rescore)
     text = report.write_report(static_results, dynamic_results, out,
                                title=f'Accuracy ({args.protocol} protocol)')
     print(text)
