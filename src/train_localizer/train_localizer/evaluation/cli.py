@@ -35,7 +35,7 @@ def build_scenarios(args):
     if args.protocol == 'demo':
         static = scenarios.static_scenarios(points_m=(9.0, 5.0, 2.0), trials=1,
                                             observe_s=args.observe_s)
-        dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=2)
+        dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4)
     if args.protocol in ('static', 'full'):
         static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s)
     if args.protocol in ('dynamic', 'full'):
@@ -54,7 +54,7 @@ def main(argv=None):
                         help='static: simulated seconds observed before the result')
     parser.add_argument('--speeds', type=int, nargs='+', default=[20, 40, 60, 80, 100, 120])
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
-    parser.add_argument('--cells', type=int, default=3, help='dynamic: lamp cells per run')
+    parser.add_argument('--cells', type=int, default=6, help='dynamic: lamp cells per run')
     parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
