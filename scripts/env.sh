@@ -16,3 +16,4 @@ export VLC_WS="$_ws"
 unset _ws
 # `ros2 run` stand-in for machines without the ros2 CLI: ros2run <pkg> <exe> [args...]
 ros2run() { "$VLC_WS/install/lib/$1/$2" "${@:3}"; }
+export -f ros2run
