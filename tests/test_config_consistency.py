@@ -31,3 +31,11 @@ def test_camera_timing_agrees_across_nodes(key):
 def test_system_runs_20_kchips_with_25_us_exposure():
     cam = _params(FILES['stereo_camera_node'])
     assert cam['chip_rate_hz'] == 20000.0 and cam['exposure_s'] == 2.5e-05
+
+
+def test_demo_pictures_show_the_graphs_camera_timing():
+    from vlc_stereo_camera.demo_images import DEMO_CONFIG
+    cam = _params(FILES['stereo_camera_node'])
+    assert DEMO_CONFIG.chip_rate_hz == cam['chip_rate_hz']
+    assert DEMO_CONFIG.exposure_s == cam['exposure_s']
+    assert DEMO_CONFIG.row_time_s == cam['row_time_s']

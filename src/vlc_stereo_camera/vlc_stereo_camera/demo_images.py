@@ -16,6 +16,10 @@ import numpy as np
 
 from .core.lamp_map import LampMap, resolve_lamp_map_path
 from .core.renderer import RendererConfig, StereoRenderer
+
+# The graph's camera timing (config/stereo_camera_node.yaml, ARCHITECTURE.md): 20 kchip/s
+# lamps seen with a 25 µs row exposure, not the core's paper/protocol defaults.
+DEMO_CONFIG = RendererConfig(chip_rate_hz=20_000.0, exposure_s=25e-6)
 from .core.trajectory import MotionProfile, Trajectory, Vibration
 
 matplotlib.use('Agg')
@@ -38,7 +42,7 @@ def _frame_with_lamp_at(distance_m, seed=1):
     t0 = float(candidates[np.argmax(np.abs(yaw) < np.radians(0.5))])
     traj = Trajectory(MotionProfile('constant', start_chainage_m=LAMP_X_M - distance_m
                                     - SPEED_MPS * t0, speed_mps=SPEED_MPS), vibration)
-    renderer = StereoRenderer(RendererConfig(), LampMap.load(resolve_lamp_map_path('')),
+    renderer = StereoRenderer(DEMO_CONFIG, LampMap.load(resolve_lamp_map_path('')),
                               traj, seed=seed)
     frame = renderer.render_at(t0, noise_key=1)
     lamp = next(t for t in frame.truth if abs(t.along_track_m - distance_m) < 0.5)
@@ -76,6 +80,7 @@ def main(argv=None):
     plt.close(fig)
 
     fig, axes = plt.subplots(1, 4, figsize=(16, 6.5))
+    c = DEMO_CONFIG
     for i, (name, frame, lamp) in enumerate(cases):
         half_w, half_h = (40, 50) if name == 'near' else (12, 18)
         for j, (side, image, uv) in enumerate((('left', frame.left, lamp.uv_left),
@@ -91,11 +96,13 @@ def main(argv=None):
                          f'{lamp.along_track_m:.1f} m ahead, viewing angle '
                          f'{lamp.viewing_angle_deg:.0f}°\nrows {rows[0]}–{rows[1]} '
                          f'({rows[1] - rows[0] + 1} rows ≈ '
-                         f'{(rows[1] - rows[0] + 1) * 30e-6 * 1e4:.0f} chips)', fontsize=10)
+                         f'{(rows[1] - rows[0] + 1) * c.row_time_s * c.chip_rate_hz:.0f} '
+                         'chips)', fontsize=10)
             ax.set_xlabel('u (px)')
             ax.set_ylabel('v (row)')
-    fig.suptitle('Rolling-shutter stripes of the lamp UID (10 kchip/s, 30 µs/row, 50 µs '
-                 'exposure); red +: true projected disc centre', fontsize=12)
+    fig.suptitle(f'Rolling-shutter stripes of the lamp UID ({c.chip_rate_hz / 1e3:g} kchip/s, '
+                 f'{c.row_time_s * 1e6:g} µs/row, {c.exposure_s * 1e6:g} µs exposure); '
+                 'red +: true projected disc centre', fontsize=12)
     fig.tight_layout()
     fig.savefig(out / 'lamp_crops.png', dpi=90)
     plt.close(fig)
