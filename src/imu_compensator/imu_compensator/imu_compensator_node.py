@@ -36,8 +36,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -50,6 +49,7 @@ from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorCo
                                               SampleStatus)
 from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
+from vlc_stereo_camera.parameters import descriptor as _desc
 
 DEG = math.pi / 180.0
 #: Exit code of an invalid configuration (as the rig's nodes).
@@ -57,18 +57,6 @@ EXIT_INVALID_CONFIG = 2
 
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _STRING = ParameterType.PARAMETER_STRING
-
-
-def _desc(text, lo=None, hi=None, ptype=None, integer=False):
-    d = ParameterDescriptor(description=text)
-    if ptype is not None:
-        d.type = ptype
-    if lo is not None and integer:
-        d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-    elif lo is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
-                                                     step=0.0)]
-    return d
 
 
 _F = AttitudeFilterConfig()

@@ -37,8 +37,7 @@ import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import ParameterType
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
@@ -54,22 +53,10 @@ from .core.centres import ChordConfig
 from .core.detection import DetectConfig
 from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from .core.matching import MatchConfig
+from vlc_stereo_camera.parameters import descriptor as _desc
 
 EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0
-
-
-def _desc(text, lo=None, hi=None, integer=False, ptype=None):
-    d = ParameterDescriptor(description=text)
-    if ptype is not None:
-        d.type = ptype
-    if lo is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
-    return d
 
 
 _STR = ParameterType.PARAMETER_STRING

@@ -34,7 +34,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
@@ -44,6 +43,7 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_stereo_camera.parameters import descriptor as _desc
 
 from . import conversions
 from .core.fix import FixConfig, RigGeometry
@@ -56,17 +56,6 @@ from .core.standstill import StandstillConfig
 _RIG = StereoRig()
 _DEG = math.pi / 180.0
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
-
-
-def _desc(text, lo=None, hi=None, integer=False):
-    d = ParameterDescriptor(description=text)
-    if lo is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
-    return d
 
 
 # name, default, descriptor — documented key by key in config/train_localizer_node.yaml

@@ -31,8 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -46,6 +45,7 @@ from .core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
 from .imu_conversions import (epoch_to_ns, imu_message, ns_to_time, sample_stamp_ns,
                               set_imu_sample)
 from .rig_params import ScenarioConfig, declare_scenario_parameters
+from .parameters import descriptor as _desc
 
 #: Samples are generated in blocks of this much simulated time and published from the
 #: block as they fall due (one trajectory evaluation per block instead of per tick); it
@@ -57,18 +57,6 @@ ASAP_PERIOD_S = 0.001
 LAG_WARN_S = 0.5
 #: Exit code of an invalid configuration (same as stereo_camera_node).
 EXIT_INVALID_CONFIG = 2
-
-
-def _desc(text, lo=None, hi=None, ptype=None, integer=False):
-    d = ParameterDescriptor(description=text)
-    if ptype is not None:
-        d.type = ptype
-    if lo is not None and integer:
-        d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-    elif lo is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi),
-                                                     step=0.0)]
-    return d
 
 
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY

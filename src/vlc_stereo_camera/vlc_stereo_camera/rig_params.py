@@ -6,23 +6,10 @@ the IMU samples describe one motion. Pass ``config/rig.yaml`` to both.
 """
 from dataclasses import dataclass
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import ParameterType
 
 from .core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
-
-
-def _desc(text, lo=None, hi=None, integer=False, ptype=None):
-    d = ParameterDescriptor(description=text)
-    if ptype is not None:
-        d.type = ptype
-    if lo is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
-    return d
+from .parameters import descriptor as _desc
 
 
 SCENARIO_PARAMETERS = (

@@ -42,8 +42,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import ParameterType
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
@@ -61,21 +60,9 @@ from .core.lamp_map import LampMap, resolve_lamp_map_path
 from .core.renderer import RendererConfig, StereoRenderer
 from .core.sensor_noise import OpticsConfig, SensorConfig
 from .rig_params import declare_scenario_parameters
+from .parameters import descriptor as _desc
 
 EXIT_INVALID_CONFIG = 2
-
-
-def _desc(text, lo=None, hi=None, integer=False, ptype=None):
-    d = ParameterDescriptor(description=text)
-    if ptype is not None:
-        d.type = ptype
-    if lo is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
-    return d
 
 
 _STR = ParameterType.PARAMETER_STRING
