@@ -121,6 +121,8 @@ PARAMETERS = (
     ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at a cold start, m/s.', 0.0, 200.0)),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
+    ('tilt_leak_time_s', 5.0, _desc('Time over which the gravity leak of the pitch error may '
+                                    'wander (extra bias random walk), s; 0 = off.', 0.0, 1000.0)),
     ('gate_chi2', 16.0, _desc('Mahalanobis gate of a fix (chi2, 1 dof).', 1.0, 1e4)),
     ('geometry_gate_chi2', 18.4, _desc('Range/direction residual gate (chi2, 2 dof).',
                                        1.0, 1e6)),
@@ -265,6 +267,7 @@ class TrainLocalizerNode(Node):
             attitude_sigma_floor_rad=tuple(v * _DEG for v in p['attitude_sigma_floor_deg']),
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(p['imu_lever_arm_m']),
+            tilt_leak_time_s=p['tilt_leak_time_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,

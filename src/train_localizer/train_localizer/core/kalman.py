@@ -97,14 +97,16 @@ def transition(dt):
     return F, B
 
 
-def process_noise(dt, config, accel_var=0.0):
+def process_noise(dt, config, accel_var=0.0, bias_q_extra=0.0):
     """Process noise Q (3, 3) of a step of ``dt`` s.
 
     ``accel_var`` (m²/s⁴) adds an acceleration that is unknown but constant over the
-    step (a gap without IMU data): ``accel_var·B·Bᵀ``.
+    step (a gap without IMU data): ``accel_var·B·Bᵀ``. ``bias_q_extra`` (m²/s⁵) adds
+    to the bias random-walk intensity (an input error that wanders, e.g. the gravity
+    leak of an uncertain pitch).
     """
     qa = config.accel_noise_density_mps2_rthz ** 2
-    qb = config.bias_random_walk_mps3_rthz ** 2
+    qb = config.bias_random_walk_mps3_rthz ** 2 + bias_q_extra
     dt2, dt3 = dt * dt, dt * dt * dt
     Q = qa * np.array([[dt3 / 3.0, dt2 / 2.0, 0.0], [dt2 / 2.0, dt, 0.0], [0.0, 0.0, 0.0]])
     Q += qb * np.array([[dt2 * dt3 / 20.0, dt2 * dt2 / 8.0, -dt3 / 6.0],
@@ -116,7 +118,7 @@ def process_noise(dt, config, accel_var=0.0):
     return Q
 
 
-def predict(state, dt, accel, config, accel_var=0.0):
+def predict(state, dt, accel, config, accel_var=0.0, bias_q_extra=0.0):
     """Propagate the state by ``dt`` seconds with the measured along-track acceleration.
 
     Parameters
@@ -131,6 +133,8 @@ def predict(state, dt, accel, config, accel_var=0.0):
     config : KalmanConfig
     accel_var : float
         Extra variance of an acceleration unknown over the step, m²/s⁴.
+    bias_q_extra : float
+        Extra bias random-walk intensity over the step, m²/s⁵.
 
     Returns
     -------
@@ -140,7 +144,7 @@ def predict(state, dt, accel, config, accel_var=0.0):
         return state.copy()
     F, B = transition(dt)
     x = F @ state.x + B * accel
-    P = F @ state.P @ F.T + process_noise(dt, config, accel_var)
+    P = F @ state.P @ F.T + process_noise(dt, config, accel_var, bias_q_extra)
     return FilterState(x, 0.5 * (P + P.T))
 
 

@@ -51,6 +51,8 @@ from .observation import NS_PER_S
 from .standstill import StandstillConfig, StandstillDetector
 
 _DEG = math.pi / 180.0
+_GRAVITY_MPS2 = 9.80665
+_NO_INPUT = (float('nan'), 0.0)   # a step whose acceleration is unknown
 
 
 @dataclass
@@ -87,6 +89,9 @@ class LocalizerConfig:
         it carries no covariance), rad.
     attitude_sigma_unknown_rad : tuple of 3 floats
         Attitude 1σ when no attitude is used (the platform vibration's span), rad.
+    tilt_leak_time_s : float
+        Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
+        ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
     imu_lever_arm_m : tuple of 3 floats
         Position of the IMU in ``base_link``, m: its rotational accelerations are
         removed before the specific force is used.
@@ -119,6 +124,7 @@ class LocalizerConfig:
     attitude_sigma_floor_rad: tuple = (0.05 * _DEG, 0.05 * _DEG, 0.1 * _DEG)
     attitude_sigma_unknown_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
+    tilt_leak_time_s: float = 5.0
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
     initial_speed_mps: float = float('nan')
@@ -247,7 +253,8 @@ class Localizer:
     def _reset_state(self):
         cfg = self.config
         self._t = []        # step times, ns
-        self._a = []        # along-track acceleration input over the interval ending here
+        self._a = []        # (along-track acceleration input, extra bias noise q) over the
+                            # interval ending here; _NO_INPUT when unknown
         self._x = []        # FilterState after the step's updates, None before initialisation
         self._gyro = []     # angular rate at the step (base_link), rad/s
         self._upd = []      # updates applied at the step, re-applied on replay
@@ -331,7 +338,8 @@ class Localizer:
                                        f'IMU gap of {(t - self._newest_imu_ns) * 1e-9:.3f} s: '
                                        'acceleration unknown over it'))
         first = self._newest_imu_ns is None
-        a_in = float('nan') if (gap or first) else 0.5 * (self._last_accel + accel)
+        a_in = _NO_INPUT if (gap or first) else (0.5 * (self._last_accel + accel),
+                                                 self._tilt_leak_q(sample))
         self._last_accel = accel
         self._newest_imu_ns = t
         if self._t and t <= self._t[-1]:
@@ -440,7 +448,7 @@ class Localizer:
                 pass
             elif self._imu_absent():
                 if self._t and t_m > self._t[-1]:
-                    self._append_step(t_m, float('nan'), np.zeros(3))
+                    self._append_step(t_m, _NO_INPUT, np.zeros(3))
             else:
                 break
             self._pending.pop(0)
@@ -479,9 +487,31 @@ class Localizer:
     def _propagate(self, state, dt_ns, a_in):
         cfg = self.config.kalman
         dt = dt_ns * 1e-9
-        if math.isnan(a_in):
+        accel, bias_q = a_in
+        if math.isnan(accel):
             return predict(state, dt, float(state.x[2]), cfg, cfg.unknown_accel_sigma_mps2 ** 2)
-        return predict(state, dt, a_in, cfg)
+        return predict(state, dt, accel, cfg, bias_q_extra=bias_q)
+
+    def _tilt_leak_q(self, sample):
+        """Extra bias random-walk intensity (m²/s⁵) from the pitch uncertainty of a sample.
+
+        A pitch error δθ leaks g·δθ of gravity into the along-track acceleration. It is
+        not white: it drifts with the attitude filter's error (after a cold start at
+        speed the pitch is uncertain by degrees for tens of seconds, 1° = 0.17 m/s²).
+        It is modelled as bias wander that can cover g·σ_pitch within
+        ``tilt_leak_time_s``: intensity (g·σ_pitch)² / τ.
+        """
+        cfg = self.config
+        tau = cfg.tilt_leak_time_s
+        if tau <= 0.0:
+            return 0.0
+        if cfg.use_imu_attitude and sample.quat_xyzw is not None:
+            floor = cfg.attitude_sigma_floor_rad[1] ** 2
+            cov = sample.attitude_cov_rad2
+            var = floor if cov is None else max(float(cov[1, 1]), floor)
+        else:
+            var = cfg.attitude_sigma_unknown_rad[1] ** 2
+        return (_GRAVITY_MPS2 ** 2) * var / tau
 
     def _prune(self):
         cutoff = self._t[-1] - int(self.config.history_s * NS_PER_S)
@@ -510,7 +540,7 @@ class Localizer:
         if i + 1 < len(self._t):
             a_in = self._a[i + 1]
         else:
-            a_in = self._a[i] if i >= 0 else float('nan')
+            a_in = self._a[i] if i >= 0 else _NO_INPUT
         state = self._state_at(t) if i >= 0 else None
         gyro = self._gyro[i] if i >= 0 else (self._gyro[0] if self._gyro else np.zeros(3))
         self._t.insert(i + 1, t)
