@@ -88,11 +88,12 @@ class Harness:
         self.pub_imu = self.test.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
         self.pub_spots = self.test.create_publisher(PointCloud2, 'spots/pairs', 10)
         self.pub_lamps = self.test.create_publisher(PointCloud2, 'vlc/lamps', 10)
-        self.got = {'pose': [], 'cov': [], 'odom': [], 'diag': []}
+        self.got = {'pose': [], 'cov': [], 'odom': [], 'diag': [], 'aid': []}
         for topic, typ, key in (('train/pose', PoseStamped, 'pose'),
                                 ('train/pose_with_covariance', PoseWithCovarianceStamped, 'cov'),
                                 ('train/odometry', Odometry, 'odom'),
-                                ('diagnostics', DiagnosticArray, 'diag')):
+                                ('diagnostics', DiagnosticArray, 'diag'),
+                                ('heading_aiding', PoseWithCovarianceStamped, 'aid')):
             self.test.create_subscription(typ, topic, lambda m, k=key: self.got[k].append(m), 100)
         self.spin_until(lambda: self.pub_imu.get_subscription_count() > 0
                         and self.pub_spots.get_subscription_count() > 0
@@ -177,6 +178,12 @@ def test_node_publishes_pose_covariance_and_odometry_against_truth(harness):
     odom = h.got['odom'][-1]
     assert odom.child_frame_id == 'base_link'
     assert odom.twist.twist.linear.x == pytest.approx(60.0 / 3.6, abs=0.3)
+    # heading_aiding for the compensator: a few per second, heading variance only
+    aids = h.got['aid']
+    assert 2 <= len(aids) <= 1.2 / 0.2 + 1
+    for aid in aids:
+        c = np.array(aid.pose.covariance).reshape(6, 6)
+        assert 0.0 < c[5, 5] < (0.5 * np.pi / 180.0) ** 2 and c[0, 0] >= 1e6
 
 
 def test_no_pose_before_a_confirmed_uid_and_waiting_reported(harness):

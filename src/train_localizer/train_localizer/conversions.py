@@ -89,6 +89,24 @@ def _fill_pose(pose_msg, est):
      pose_msg.orientation.w) = (float(v) for v in q)
 
 
+def heading_aid_message(aid, map_frame):
+    """HeadingAid → PoseWithCovarianceStamped for the compensator's ``heading_aiding``.
+
+    The orientation carries the heading; covariance[35] (rotation about map z) its
+    variance. The position is the fix's chainage on the track; its own variances and
+    roll/pitch are marked unknown (1e6), since only the heading is offered.
+    """
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp = ns_to_stamp(aid.stamp_ns)
+    msg.header.frame_id = map_frame
+    msg.pose.pose.position.x = float(aid.chainage_m)
+    q = msg.pose.pose.orientation
+    q.x, q.y, q.z, q.w = (float(v) for v in aid.quat_xyzw)
+    cov = np.diag([1e6, 1e6, 1e6, 1e6, 1e6, float(aid.var_rad2)])
+    msg.pose.covariance = cov.reshape(-1).tolist()
+    return msg
+
+
 def pose_covariance_6x6(est):
     """Row-major 6×6 (x, y, z, rot x, rot y, rot z) covariance of a PoseEstimate."""
     cov = np.zeros((6, 6))

@@ -121,6 +121,9 @@ PARAMETERS = (
     ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at a cold start, m/s.', 0.0, 200.0)),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
+    ('heading_aiding_period_s', 0.2, _desc('Shortest interval between two heading_aiding '
+                                           'messages (the heading an accepted lamp shows), s; '
+                                           '0 = none.', 0.0, 60.0)),
     ('tilt_leak_time_s', 5.0, _desc('Time over which the gravity leak of the pitch error may '
                                     'wander (extra bias random walk), s; 0 = off.', 0.0, 1000.0)),
     ('gate_chi2', 16.0, _desc('Mahalanobis gate of a fix (chi2, 1 dof).', 1.0, 1e4)),
@@ -206,6 +209,7 @@ class TrainLocalizerNode(Node):
                                                   'train/pose_with_covariance', estimate_qos)
         self.pub_odom = self.create_publisher(Odometry, 'train/odometry', estimate_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
+        self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'heading_aiding', 10)
         self.create_subscription(Imu, 'imu/data', self._on_imu, qos_profile_sensor_data)
         self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
         self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
@@ -268,6 +272,7 @@ class TrainLocalizerNode(Node):
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(p['imu_lever_arm_m']),
             tilt_leak_time_s=p['tilt_leak_time_s'],
+            heading_aiding_period_s=p['heading_aiding_period_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,
@@ -334,6 +339,8 @@ class TrainLocalizerNode(Node):
     def _publish(self, report):
         for event in report.events:
             self._log_event(event)
+        for aid in report.heading_aids:
+            self.pub_aid.publish(conversions.heading_aid_message(aid, self.params['map_frame_id']))
         if not report.poses:
             return
         map_frame, base_frame = self.params['map_frame_id'], self.params['base_frame_id']

@@ -319,6 +319,28 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
 
     Parameters and returns as :func:`paper_fix`.
     """
+    fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base,
+                        np.asarray(cov_att, float) * config.attitude_weight_inflation,
+                        geometry, config)
+    s, dtheta, cov_post, J, W, e, prior_info = fit
+    var = float(cov_post[0, 0])
+    # s = K·p_cam to first order: its pixel-noise part (independent frame to frame)
+    gain = (cov_post @ J.T @ W)[0]
+    var_random = min(float(gain @ cov_cam @ gain), var)
+    chi2 = float(e @ W @ e + dtheta @ prior_info @ dtheta)
+    y0, z0 = config.track_offset_yz_m
+    return FixResult(chainage_m=s, var_m2=var, var_random_m2=var_random,
+                     var_systematic_m2=var - var_random, chi2_geometry=chi2,
+                     position_m=np.array([s, y0, z0]), range_m=float(np.linalg.norm(p_cam)),
+                     attitude_error_rad=dtheta, attitude_error_cov_rad2=cov_post[1:, 1:])
+
+
+def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config):
+    """Gauss–Newton fit of ``s`` and ``δθ`` (see :func:`constrained_fix`).
+
+    Returns ``(s, δθ, cov_post (4, 4), J (3, 4), W (3, 3), residual (3,), prior_info)``
+    at the solution.
+    """
     g = geometry
     lamp = np.asarray(lamp_position_m, float)
     y0, z0 = config.track_offset_yz_m
@@ -329,21 +351,23 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
     cov_meas = (cov_cam + A_yz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_yz.T
                 + np.eye(3) * config.lamp_position_sigma_m ** 2)
     W = np.linalg.inv(cov_meas)
-    cov_prior = np.asarray(cov_att, float) * config.attitude_weight_inflation
     prior_info = np.linalg.inv(cov_prior + np.eye(3) * 1e-14)
     # start: s from the range along the IMU attitude's line of sight
     H0 = -B[:, 0]
     s = float(H0 @ (p_cam - B @ lamp + c)) / float(H0 @ H0)
     dtheta = np.zeros(3)
-    for _ in range(6):
+
+    def linearise():
         E = _exp_so3(-dtheta)
         d = lamp - np.array([s, y0, z0])
-        h = B @ E @ d - c
         # ∂h/∂s = −B·E·e_x; ∂h/∂δθ = B·E·[d]× (first order about the current δθ)
         J = np.column_stack([-(B @ E)[:, 0], B @ E @ skew(d)])
-        r = p_cam - h
         N = J.T @ W @ J
         N[1:, 1:] += prior_info
+        return J, N, p_cam - (B @ E @ d - c)
+
+    for _ in range(8):
+        J, N, r = linearise()
         g_vec = J.T @ W @ r
         g_vec[1:] -= prior_info @ dtheta
         step = np.linalg.solve(N, g_vec)
@@ -351,22 +375,29 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
         dtheta = dtheta + step[1:]
         if abs(step[0]) < 1e-7 and float(np.max(np.abs(step[1:]))) < 1e-9:
             break
-    E = _exp_so3(-dtheta)
-    d = lamp - np.array([s, y0, z0])
-    e = p_cam - (B @ E @ d - c)
-    J = np.column_stack([-(B @ E)[:, 0], B @ E @ skew(d)])
-    N = J.T @ W @ J
-    N[1:, 1:] += prior_info
-    cov_post = np.linalg.inv(N)
-    var = float(cov_post[0, 0])
-    # s = K·p_cam to first order: its pixel-noise part (independent frame to frame)
-    gain = (cov_post @ J.T @ W)[0]
-    var_random = min(float(gain @ cov_cam @ gain), var)
-    chi2 = float(e @ W @ e + dtheta @ prior_info @ dtheta)
-    return FixResult(chainage_m=s, var_m2=var, var_random_m2=var_random,
-                     var_systematic_m2=var - var_random, chi2_geometry=chi2,
-                     position_m=np.array([s, y0, z0]), range_m=float(np.linalg.norm(p_cam)),
-                     attitude_error_rad=dtheta, attitude_error_cov_rad2=cov_post[1:, 1:])
+    J, N, r = linearise()
+    return s, dtheta, np.linalg.inv(N), J, W, r, prior_info
+
+
+def vision_heading(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+    """Heading error of the IMU attitude seen by one lamp, without the IMU's heading prior.
+
+    The same fit as :func:`constrained_fix` with the roll/pitch prior kept and the
+    heading prior dropped, so the result is a measurement independent of the IMU
+    heading it corrects (for ``heading_aiding``: the compensator fuses it as such).
+
+    Returns
+    -------
+    (float, float)
+        ``δψ`` (rad, true heading = IMU heading + δψ) and its variance (rad²).
+    """
+    cov_prior = np.asarray(cov_att, float).copy()
+    cov_prior[2, :] = 0.0
+    cov_prior[:, 2] = 0.0
+    cov_prior[2, 2] = 1.0        # 1 rad: no heading information
+    fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
+                        config)
+    return float(fit[1][2]), float(fit[2][3, 3])
 
 
 def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
