@@ -348,3 +348,47 @@ def test_a_single_frame_cold_start_publishes_only_once_the_speed_is_known():
     assert poses and all(p.chainage_sigma_m <= 0.5 for p in poses)
     err, sigma, _ = errors_of(poses, traj)
     assert np.max(np.abs(err[:, 0])) < 0.1
+
+
+def test_lamp_outage_stays_bounded_reports_degraded_and_reacquires_at_the_next_lamp():
+    """Issue 7's outage: every second lamp dark for 200 m, then 500 m with none, at
+    100 km/h. The error stays inside its 3σ, integrity degrades (coasting, then σ above
+    the limit), and the first lamp after the outage brings the error back to cm."""
+    v = 100.0 / 3.6
+    start_m, half_dark, dark = 5.0, (100.0, 300.0), (300.0, 800.0)
+    traj, events = scenario(100.0, 900.0 / v, seed=8, start_m=start_m)
+
+    def outage(stamp, observations, truth):
+        keep = []
+        for obs, tr in zip(observations, truth):
+            x = LAMPS.by_uid(tr['uid']).position_m[0]
+            lamp_id = tr['uid'] & 0xFFF
+            if dark[0] <= x < dark[1] or (half_dark[0] <= x < half_dark[1] and lamp_id % 2):
+                continue
+            keep.append(obs)
+        return keep
+
+    loc = make()
+    states = []
+    poses, fixes, logs = [], [], []
+    for _, kind, payload in events:
+        if kind == 'imu':
+            report = loc.add_imu(payload)
+        else:
+            stamp, observations, truth = payload
+            report = loc.add_frame(stamp, outage(stamp, observations, truth))
+        poses += report.poses
+        fixes += report.fixes
+        states.append((loc.newest_ns, loc.status()[0]))
+    err, sigma, t = errors_of(poses, traj)
+    x_true = traj.sample(t).position_m[:, 0]
+    assert np.all(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0])
+    in_outage = (x_true > dark[0] + 20.0) & (x_true < dark[1] - 10.0)
+    assert np.max(np.abs(err[in_outage, 0])) < 3.0     # IMU-only over 18 s
+    seen = {s for _, s in states}
+    assert IntegrityState.COASTING in seen and IntegrityState.DEGRADED in seen
+    assert states[-1][1] == IntegrityState.TRACKING
+    # re-acquired at the first lamp after the outage (at 800 m: seen from ~791 m)
+    assert not [f for f in fixes if f.status.startswith('rejected')]
+    after = x_true > dark[1] + 2.0
+    assert after.any() and np.max(np.abs(err[after, 0])) < 0.05
