@@ -26,6 +26,7 @@ setup(
             'bag_player = train_localizer.bagtools.player_node:main',
             'run_evaluation = train_localizer.evaluation.cli:main',
             'localizer_benchmark = train_localizer.benchmark:main',
+            'localizer_replay = train_localizer.replay:main',
         ],
     },
 )
