@@ -51,6 +51,9 @@ class Scenario:
     cruise_s: float = 100.0
     duration_s: float = 120.0
     settle_s: float = 1.0
+    aiding_period_s: float = 0.0      # external heading every this often (0 = none), s
+    aiding_sigma_deg: float = 0.3     # its 1σ (the localizer's lamp heading: 0.1–1°)
+    aiding_delay_s: float = 0.06      # it arrives this late (image processing)
 
 
 def departure(speed_kmh, dwell_s=20.0, cruise_s=100.0):
@@ -110,11 +113,19 @@ def simulate(scenario, seed, filter_config=None, ideal_scale_factor=False, rate_
                                                  nominal_rate_hz=rate_hz))
     quats = np.empty((t.size, 4))
     stationary = np.empty(t.size, dtype=bool)
+    aid_rng = np.random.default_rng(seed + 1000)
+    aid_every = int(round(scenario.aiding_period_s * rate_hz))
+    aid_delay = int(round(scenario.aiding_delay_s * rate_hz))
     start = time.perf_counter()
     for i in range(t.size):
         res = comp.process(EPOCH_S + t[i], gyro[i], accel[i])
         quats[i] = res.quat_xyzw
         stationary[i] = res.stationary
+        k = i - aid_delay           # a heading measured at sample k arrives now
+        if aid_every and k >= 0 and k % aid_every == 0:
+            sigma = scenario.aiding_sigma_deg * DEG
+            comp.heading_aiding(EPOCH_S + t[k], truth.rpy_rad[k, 2] + aid_rng.normal(0.0, sigma),
+                                sigma * sigma)
     elapsed = time.perf_counter() - start
     true_rpy = truth.rpy_rad
     est_rpy = quat_to_rpy(quats)
@@ -160,7 +171,10 @@ def scenarios(quick=False):
     return ([Scenario('standstill', 'standstill', duration_s=120.0)]
             + [departure(v) for v in (20.0, 40.0, 60.0, 80.0, 100.0, 120.0)]
             + [Scenario('cold start 80 km/h (scored from 60 s)', 'cold_start', 80.0,
-                        duration_s=180.0, settle_s=60.0)])
+                        duration_s=180.0, settle_s=60.0),
+               Scenario('cold start 80 km/h, lamp heading aiding 5 Hz (scored from 10 s)',
+                        'cold_start', 80.0, duration_s=60.0, settle_s=10.0,
+                        aiding_period_s=0.2)])
 
 
 def _row(name, merged, n):
