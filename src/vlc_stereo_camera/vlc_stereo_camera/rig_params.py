@@ -3,11 +3,18 @@
 Both nodes declare the same parameters (documented in ``config/rig.yaml``) and build the
 same :class:`~vlc_stereo_camera.core.trajectory.Trajectory` from them, so the images and
 the IMU samples describe one motion. Pass ``config/rig.yaml`` to both.
+
+``alignment`` selects the track geometry (:mod:`.core.alignment`): ``straight`` (the
+default, along map x) or a named curved alignment such as ``curved_demo``; the rig's
+lamp map must be the alignment's (``lamp_map_path`` = ``lamp_map_<alignment>.yaml``,
+see :meth:`ScenarioConfig.default_lamp_map_path`).
 """
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import ParameterType
 
+from .core.alignment import NAMED_ALIGNMENTS, Alignment
+from .core.lamp_map import default_lamp_map_path
 from .core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 from .parameters import descriptor as _desc
 
@@ -29,6 +36,9 @@ SCENARIO_PARAMETERS = (
     ('vibration_enabled', True, _desc('Platform vibration per paper eq. 21 on or off.')),
     ('vibration_scale', 1.0, _desc('Scale of all vibration amplitudes (1 = paper: heading '
                                    '-5.0..+7.5 deg).', 0.0, 5.0)),
+    ('alignment', 'straight', _desc('Track alignment: ' + ', '.join(NAMED_ALIGNMENTS)
+                                    + ' (straight = along map x).',
+                                    ptype=ParameterType.PARAMETER_STRING)),
 )
 
 
@@ -45,6 +55,15 @@ class ScenarioConfig:
     cruise_s: float
     vibration_enabled: bool
     vibration_scale: float
+    alignment: str = 'straight'
+
+    def track_alignment(self):
+        """The Alignment named by ``alignment`` (raises ValueError if unknown)."""
+        return Alignment.named(self.alignment)
+
+    def default_lamp_map_path(self):
+        """The shipped lamp map of this alignment (``lamp_map_path`` '' should mean it)."""
+        return default_lamp_map_path(self.alignment)
 
     def trajectory(self):
         """The Trajectory these parameters describe (raises ValueError if invalid)."""
@@ -55,7 +74,7 @@ class ScenarioConfig:
                                 cruise_s=self.cruise_s)
         vibration = Vibration(VibrationConfig(enabled=self.vibration_enabled,
                                               scale=self.vibration_scale), seed=self.seed)
-        return Trajectory(profile, vibration)
+        return Trajectory(profile, vibration, self.track_alignment())
 
 
 def declare_scenario_parameters(node):

@@ -3,12 +3,16 @@
 File format (YAML)::
 
     frame_id: map
+    alignment: curved_demo            # optional: the track alignment the map belongs to
     lamps:
       - {uid: 4097, line_id: 1, lamp_id: 1, position_m: [10.0, 2.5, 1.4],
-         normal: [0.0, -1.0, 0.0], diameter_m: 0.2}
+         normal: [0.0, -1.0, 0.0], diameter_m: 0.2, chainage_m: 10.0}
 
 ``normal`` is the unit normal of the lamp disc, pointing out of the wall into the
-tunnel. Positions in metres in the ``map`` frame.
+tunnel. Positions in metres in the ``map`` frame. ``chainage_m`` (optional) is the
+lamp's chainage along the alignment; absent, it is the map x (straight track). The
+straight map (``lamp_map.yaml``) omits both optional keys; a curved alignment's map
+(``lamp_map_<alignment>.yaml``) has them.
 """
 from dataclasses import dataclass, field
 import os
@@ -17,6 +21,7 @@ import pathlib
 import numpy as np
 import yaml
 
+from .alignment import NAMED_ALIGNMENTS, Alignment
 from .vlc_protocol import uid_of
 
 PACKAGE = 'vlc_stereo_camera'
@@ -30,6 +35,12 @@ class Lamp:
     position_m: np.ndarray
     normal: np.ndarray = field(default_factory=lambda: np.array([0.0, -1.0, 0.0]))
     diameter_m: float = 0.2
+    chainage_m: float = float('nan')
+
+    @property
+    def track_chainage_m(self):
+        """Chainage along the alignment: ``chainage_m``, or the map x when not given."""
+        return self.chainage_m if np.isfinite(self.chainage_m) else float(self.position_m[0])
 
     def __post_init__(self):
         self.position_m = np.asarray(self.position_m, dtype=float).reshape(3)
@@ -43,11 +54,16 @@ class Lamp:
 
 
 class LampMap:
-    """An ordered collection of lamps with lookup by UID and by chainage."""
+    """An ordered collection of lamps with lookup by UID, map x and chainage.
 
-    def __init__(self, lamps, frame_id='map'):
+    Lamps are kept in map-x order; on the shipped alignments map x grows with chainage
+    (heading within ±90°), so this is also chainage order.
+    """
+
+    def __init__(self, lamps, frame_id='map', alignment=''):
         self.lamps = sorted(lamps, key=lambda lamp: lamp.position_m[0])
         self.frame_id = frame_id
+        self.alignment = alignment
         self._by_uid = {}
         for lamp in self.lamps:
             if lamp.uid in self._by_uid:
@@ -55,6 +71,7 @@ class LampMap:
             self._by_uid[lamp.uid] = lamp
         self.positions = (np.array([lamp.position_m for lamp in self.lamps])
                           if self.lamps else np.zeros((0, 3)))
+        self.chainages = np.array([lamp.track_chainage_m for lamp in self.lamps])
 
     def __len__(self):
         return len(self.lamps)
@@ -64,10 +81,20 @@ class LampMap:
         return self._by_uid.get(int(uid))
 
     def near(self, x_m, ahead_m, behind_m=0.0):
-        """Lamps with chainage in ``[x_m - behind_m, x_m + ahead_m]``, in order."""
+        """Lamps with map x in ``[x_m - behind_m, x_m + ahead_m]``, in order.
+
+        On a straight track map x is the chainage; on a curve use :meth:`near_chainage`
+        for a window along the track.
+        """
         xs = self.positions[:, 0] if len(self) else np.zeros(0)
         lo, hi = np.searchsorted(xs, [x_m - behind_m, x_m + ahead_m + 1e-12])
         return self.lamps[lo:hi]
+
+    def near_chainage(self, chainage_m, ahead_m, behind_m=0.0):
+        """Lamps with chainage in ``[chainage_m - behind_m, chainage_m + ahead_m]``."""
+        keep = ((self.chainages >= chainage_m - behind_m)
+                & (self.chainages <= chainage_m + ahead_m + 1e-12))
+        return [lamp for lamp, k in zip(self.lamps, keep) if k]
 
     @classmethod
     def load(cls, path):
@@ -78,16 +105,26 @@ class LampMap:
         lamps = [Lamp(uid=int(d['uid']), line_id=int(d['line_id']),
                       lamp_id=int(d['lamp_id']), position_m=d['position_m'],
                       normal=d.get('normal', [0.0, -1.0, 0.0]),
-                      diameter_m=float(d.get('diameter_m', 0.2)))
+                      diameter_m=float(d.get('diameter_m', 0.2)),
+                      chainage_m=float(d.get('chainage_m', float('nan'))))
                  for d in data['lamps']]
-        return cls(lamps, frame_id=data.get('frame_id', 'map'))
+        return cls(lamps, frame_id=data.get('frame_id', 'map'),
+                   alignment=str(data.get('alignment', '')))
 
     def save(self, path):
-        data = {'frame_id': self.frame_id, 'lamps': [
-            {'uid': lamp.uid, 'line_id': lamp.line_id, 'lamp_id': lamp.lamp_id,
-             'position_m': [round(float(v), 6) for v in lamp.position_m],
-             'normal': [round(float(v), 6) for v in lamp.normal],
-             'diameter_m': float(lamp.diameter_m)} for lamp in self.lamps]}
+        data = {'frame_id': self.frame_id}
+        if self.alignment:
+            data['alignment'] = self.alignment
+        data['lamps'] = []
+        for lamp in self.lamps:
+            entry = {'uid': lamp.uid, 'line_id': lamp.line_id, 'lamp_id': lamp.lamp_id,
+                     # + 0.0 turns -0.0 into 0.0 in the file
+                     'position_m': [round(float(v), 6) + 0.0 for v in lamp.position_m],
+                     'normal': [round(float(v), 6) + 0.0 for v in lamp.normal],
+                     'diameter_m': float(lamp.diameter_m)}
+            if np.isfinite(lamp.chainage_m):
+                entry['chainage_m'] = round(float(lamp.chainage_m), 6)
+            data['lamps'].append(entry)
         with open(path, 'w', encoding='utf-8') as stream:
             stream.write('# Lamp map: UID -> lamp disc centre in the map frame (m), disc normal\n'
                          '# (unit, into the tunnel) and diameter. Generated by\n'
@@ -112,23 +149,75 @@ def straight_tunnel_map(line_id=1, first_lamp_id=1, count=200, spacing_m=10.0,
                     for i in range(count)])
 
 
-def default_lamp_map_path():
-    """The installed ``share/vlc_stereo_camera/config/lamp_map.yaml``, else the source one."""
+def alignment_lamp_map(alignment, line_id=1, first_lamp_id=1, spacing_m=10.0,
+                       first_chainage_m=10.0, last_chainage_m=None, lateral_m=2.5,
+                       height_m=1.4, diameter_m=0.2):
+    """Lamps every ``spacing_m`` of chainage on the left wall of ``alignment``.
+
+    Each lamp sits ``lateral_m`` left of the centreline (along the track's left normal
+    n(s)) at ``height_m`` above rail level, its disc in the wall plane with the normal
+    −n(s), facing the track. ``last_chainage_m`` defaults to the alignment's end. On
+    the default straight this is :func:`straight_tunnel_map` (same positions and
+    normals), with each lamp's chainage recorded.
+
+    Parameters
+    ----------
+    alignment : Alignment
+    line_id, first_lamp_id : int
+        UID = line_id << 12 | lamp_id, lamp ids counting up from ``first_lamp_id``.
+    spacing_m, first_chainage_m, last_chainage_m, lateral_m, height_m, diameter_m : float
+        Metres.
+    """
+    last = alignment.end_chainage_m if last_chainage_m is None else float(last_chainage_m)
+    count = int(np.floor((last - first_chainage_m) / spacing_m + 1e-9)) + 1
+    s = first_chainage_m + spacing_m * np.arange(count)
+    points = alignment.to_map(s, lateral_m, height_m)
+    normals = -alignment.evaluate(s).left_normal
+    return LampMap([Lamp(uid=uid_of(line_id, first_lamp_id + i), line_id=line_id,
+                         lamp_id=first_lamp_id + i, position_m=points[i],
+                         normal=[normals[i, 0], normals[i, 1], 0.0], diameter_m=diameter_m,
+                         chainage_m=float(s[i]))
+                    for i in range(count)], alignment=alignment.name)
+
+
+def lamp_map_file_name(alignment='straight'):
+    """``lamp_map.yaml`` for the straight alignment, else ``lamp_map_<alignment>.yaml``."""
+    return 'lamp_map.yaml' if alignment in ('', 'straight') else f'lamp_map_{alignment}.yaml'
+
+
+def default_lamp_map_path(alignment='straight'):
+    """The installed ``share/vlc_stereo_camera/config/<lamp map of the alignment>``,
+    else the source one."""
+    name = lamp_map_file_name(alignment)
     try:
         from ament_index_python.packages import get_package_share_directory
-        path = pathlib.Path(get_package_share_directory(PACKAGE)) / 'config' / 'lamp_map.yaml'
+        path = pathlib.Path(get_package_share_directory(PACKAGE)) / 'config' / name
         if path.exists():
             return str(path)
     except (ImportError, LookupError, ValueError):
         pass
-    return str(pathlib.Path(__file__).resolve().parents[2] / 'config' / 'lamp_map.yaml')
+    return str(pathlib.Path(__file__).resolve().parents[2] / 'config' / name)
 
 
-def resolve_lamp_map_path(path):
-    """An explicit path as given; '' means the default map."""
-    return os.path.expanduser(path) if path else default_lamp_map_path()
+def resolve_lamp_map_path(path, alignment='straight'):
+    """An explicit path as given; '' means the default map of ``alignment``."""
+    return os.path.expanduser(path) if path else default_lamp_map_path(alignment)
+
+
+def write_shipped_maps(config_dir):
+    """Write the straight map and one map per named curved alignment into ``config_dir``.
+
+    The straight map is line 1; the curved alignments are lines 2, 3, … in the order of
+    ``NAMED_ALIGNMENTS``, so a receiver given the wrong map sees unknown UIDs (a reported
+    anomaly) instead of silently using another line's lamp positions.
+    """
+    config_dir = pathlib.Path(config_dir)
+    straight_tunnel_map().save(config_dir / lamp_map_file_name('straight'))
+    curved = [name for name, spec in NAMED_ALIGNMENTS.items() if spec is not None]
+    for line_id, name in enumerate(curved, start=2):
+        alignment_lamp_map(Alignment.named(name), line_id=line_id).save(
+            config_dir / lamp_map_file_name(name))
 
 
 if __name__ == '__main__':
-    straight_tunnel_map().save(pathlib.Path(__file__).resolve().parents[2] / 'config'
-                               / 'lamp_map.yaml')
+    write_shipped_maps(pathlib.Path(__file__).resolve().parents[2] / 'config')

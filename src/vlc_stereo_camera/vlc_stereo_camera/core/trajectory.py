@@ -1,8 +1,26 @@
-"""Train motion along a straight track and camera-platform vibration (paper eq. 21).
+"""Train motion along the track alignment and camera-platform vibration (paper eq. 21).
 
 Times ``t_s`` are seconds since the simulation epoch. Everything is analytic in t (sums
-of sinusoids, piecewise-constant acceleration), so the IMU model gets exact angular rate
-and specific force, and the renderer gets the pose at any row's exposure instant.
+of sinusoids, piecewise-constant acceleration, the alignment's closed-form geometry), so
+the IMU model gets exact angular rate and specific force, and the renderer gets the pose
+at any row's exposure instant.
+
+Track geometry (:mod:`.alignment`; default the straight line along map x): at chainage
+s(t) the centreline point P(s), heading ψ(s) and curvature κ(s). ``base_link`` is
+
+    p = P(s) + Rz(ψ)·w,     R_map_base = Rz(ψ)·Rz(yaw_v)·Ry(pitch_v)·Rx(roll_v)
+
+with w = (x_v, y_v, z_v) the vibration displacement in the track frame (along, left,
+up). Differentiating with Ω = ψ̇·ẑ, ψ̇ = κ·v, Ω̇ = (κ'·v² + κ·a)·ẑ:
+
+    ṗ = v·t + Ω × Rw + R·ẇ
+    p̈ = a·t + κ·v²·n + Ω̇ × Rw + Ω × (Ω × Rw) + 2·Ω × Rẇ + R·ẅ
+
+(t, n: track tangent and left normal), so the IMU sees the track's yaw rate κ·v and the
+centripetal acceleration κ·v² toward the curve's centre. The track is level and has no
+cant (superelevation): the centripetal acceleration appears in full on the platform's
+y axis, and the roll is the vibration roll only. On the default straight every added
+term is an exact zero, so the samples equal the straight-track model's to the bit.
 
 Vibration model (paper eq. 21: low-frequency sinusoids plus Gaussian track
 irregularity), per axis k of (x, y, z, roll, pitch, yaw)::
@@ -21,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .alignment import Alignment
 from .geometry import matrix_to_quat_xyzw, rpy_to_matrix
 
 GRAVITY_MPS2 = 9.80665
@@ -179,7 +198,12 @@ class Vibration:
 
 @dataclass
 class TrajectorySample:
-    """Ground truth of ``base_link`` at N instants (map frame unless stated)."""
+    """Ground truth of ``base_link`` at N instants (map frame unless stated).
+
+    ``chainage_m`` is the train's chainage s (without the along-track vibration),
+    ``rpy_rad`` the attitude in map (yaw = track heading + vibration yaw),
+    ``track_heading_rad`` ψ(s) and ``track_curvature_1pm`` κ(s) of the alignment there.
+    """
 
     t_s: np.ndarray
     chainage_m: np.ndarray
@@ -191,6 +215,8 @@ class TrajectorySample:
     R_map_base: np.ndarray
     angular_velocity_body_rps: np.ndarray
     specific_force_body_mps2: np.ndarray
+    track_heading_rad: np.ndarray = None
+    track_curvature_1pm: np.ndarray = None
 
     @property
     def quat_xyzw(self):
@@ -198,11 +224,15 @@ class TrajectorySample:
 
 
 class Trajectory:
-    """Motion profile plus vibration: the pose of ``base_link`` in ``map`` over time."""
+    """Motion profile plus vibration along an alignment: ``base_link`` in ``map`` over time.
 
-    def __init__(self, profile=None, vibration=None):
+    ``alignment`` defaults to the straight line along map x (chainage = map x).
+    """
+
+    def __init__(self, profile=None, vibration=None, alignment=None):
         self.profile = profile or MotionProfile()
         self.vibration = vibration or Vibration()
+        self.alignment = alignment or Alignment.straight()
 
     def sample(self, t_s):
         """Evaluate the ground truth at times ``t_s`` (scalar or (N,)); see TrajectorySample."""
@@ -210,13 +240,37 @@ class Trajectory:
         s, v, a = self.profile.evaluate(t)
         q, qd, qdd = self.vibration.evaluate(t, s, v, a)
         zeros = np.zeros_like(t)
-        position = np.stack([s + q[:, 0], q[:, 1], q[:, 2]], axis=1)
-        velocity = np.stack([v + qd[:, 0], qd[:, 1], qd[:, 2]], axis=1)
-        accel = np.stack([a + qdd[:, 0], qdd[:, 1], qdd[:, 2]], axis=1)
-        roll, pitch, yaw = q[:, 3], q[:, 4], q[:, 5]
-        droll, dpitch, dyaw = qd[:, 3], qd[:, 4], qd[:, 5]
+        track = self.alignment.evaluate(s + zeros)
+        c, sn = np.cos(track.heading_rad), np.sin(track.heading_rad)
+        kappa = track.curvature_1pm
+        yaw_rate = kappa * v                                     # ψ̇
+        yaw_accel = track.curvature_rate_1pm2 * v * v + kappa * a   # ψ̈
+
+        def to_map(w):
+            """Track-frame (along, left) components → map x, y."""
+            return c * w[:, 0] - sn * w[:, 1], sn * w[:, 0] + c * w[:, 1]
+
+        def cross_z(rate, wx, wy):
+            """(rate·ẑ) × (wx, wy, ·): the in-plane components."""
+            return -rate * wy, rate * wx
+
+        rw_x, rw_y = to_map(q)              # R·w
+        rwd_x, rwd_y = to_map(qd)           # R·ẇ
+        rwdd_x, rwdd_y = to_map(qdd)        # R·ẅ
+        om_x, om_y = cross_z(yaw_rate, rw_x, rw_y)                  # Ω × Rw
+        al_x, al_y = cross_z(yaw_accel, rw_x, rw_y)                 # Ω̇ × Rw
+        cen_x, cen_y = cross_z(yaw_rate, om_x, om_y)                # Ω × (Ω × Rw)
+        cor_x, cor_y = cross_z(2.0 * yaw_rate, rwd_x, rwd_y)        # 2Ω × Rẇ
+        v_curve = kappa * v * v                                     # κv² along n
+        position = np.stack([track.x_m + rw_x, track.y_m + rw_y, q[:, 2]], axis=1)
+        velocity = np.stack([v * c + om_x + rwd_x, v * sn + om_y + rwd_y, qd[:, 2]], axis=1)
+        accel = np.stack([a * c - v_curve * sn + al_x + cen_x + cor_x + rwdd_x,
+                          a * sn + v_curve * c + al_y + cen_y + cor_y + rwdd_y,
+                          qdd[:, 2]], axis=1)
+        roll, pitch, yaw = q[:, 3], q[:, 4], track.heading_rad + q[:, 5]
+        droll, dpitch, dyaw = qd[:, 3], qd[:, 4], qd[:, 5] + yaw_rate
         R = rpy_to_matrix(roll, pitch, yaw)
-        # Body angular rate from ZYX Euler rates.
+        # Body angular rate from ZYX Euler rates (the track heading adds to the yaw).
         omega = np.stack([
             droll - dyaw * np.sin(pitch),
             dpitch * np.cos(roll) + dyaw * np.sin(roll) * np.cos(pitch),
@@ -225,6 +279,9 @@ class Trajectory:
         f_body = np.einsum('nji,nj->ni', R, accel - gravity)
         return TrajectorySample(t_s=t, chainage_m=s + zeros, speed_mps=v + zeros,
                                 position_m=position, velocity_mps=velocity,
-                                acceleration_mps2=accel, rpy_rad=q[:, 3:6], R_map_base=R,
+                                acceleration_mps2=accel,
+                                rpy_rad=np.stack([roll, pitch, yaw], axis=1), R_map_base=R,
                                 angular_velocity_body_rps=omega,
-                                specific_force_body_mps2=f_body)
+                                specific_force_body_mps2=f_body,
+                                track_heading_rad=track.heading_rad,
+                                track_curvature_1pm=kappa)
