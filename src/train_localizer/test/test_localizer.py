@@ -392,3 +392,36 @@ def test_lamp_outage_stays_bounded_reports_degraded_and_reacquires_at_the_next_l
     assert not [f for f in fixes if f.status.startswith('rejected')]
     after = x_true > dark[1] + 2.0
     assert after.any() and np.max(np.abs(err[after, 0])) < 0.05
+
+
+@pytest.mark.parametrize('speed_kmh', [40.0, 100.0])
+def test_curved_alignment_through_transition_and_curve(speed_kmh):
+    """curved_demo from its first straight through the clothoid into the R = 400 m curve:
+    the fix puts base_link on the alignment, the filter runs along its chainage and the
+    pose lies on the curve, in map x and y."""
+    from vlc_stereo_camera.core.alignment import Alignment
+    from vlc_stereo_camera.core.lamp_map import alignment_lamp_map
+
+    from train_localizer.core.track import Track
+
+    alignment = Alignment.named('curved_demo')
+    lamps = alignment_lamp_map(alignment)
+    v = speed_kmh / 3.6
+    traj = Trajectory(MotionProfile('constant', start_chainage_m=150.0, speed_mps=v),
+                      Vibration(seed=9), alignment=alignment)
+    sim = SensorSimulator(traj, RIG, lamps, SensorErrors(), np.random.default_rng(9))
+    events = event_stream(sim, 0.0, 250.0 / v)
+    cfg = LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG))
+    cfg.fix.track = Track(alignment)
+    loc = Localizer(lamps, cfg)
+    poses, fixes, _ = feed(loc, events)
+    err, sigma, t = errors_of(poses, traj)
+    truth = traj.sample(t)
+    assert truth.chainage_m[-1] > 380.0 and np.ptp(truth.position_m[:, 1]) > 10.0   # curved
+    assert not [f for f in fixes if f.status.startswith('rejected')]
+    assert np.max(np.linalg.norm(err, axis=1)) < 0.06
+    d2 = [e @ np.linalg.solve(p.position_cov_m2 + 1e-12 * np.eye(3), e)
+          for e, p in zip(err, poses)]
+    assert np.mean(np.array(d2) <= 14.16) >= 0.997          # χ²(3) at 99.73 %
+    along = np.array([p.chainage_m for p in poses]) - truth.chainage_m
+    assert np.max(np.abs(along)) < 0.06

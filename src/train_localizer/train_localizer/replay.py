@@ -26,8 +26,6 @@ import time
 import numpy as np
 import yaml
 
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-
 from . import conversions
 from .bagtools.bagio import open_bag
 from .core.join import FrameJoiner
@@ -52,9 +50,11 @@ def default_params_file():
 
 
 def load_params(params_file=None, overrides=None):
-    """Parameter dict of the node: its YAML file plus overrides {name: value}."""
+    """Parameter dict of the node: its declared defaults, its YAML file, then overrides."""
+    from .train_localizer_node import PARAMETERS
     text = pathlib.Path(params_file or default_params_file()).read_text(encoding='utf-8')
-    params = dict(yaml.safe_load(text)['/**']['ros__parameters'])
+    params = {name: default for name, default, _ in PARAMETERS}
+    params.update(yaml.safe_load(text)['/**']['ros__parameters'])
     for name, value in (overrides or {}).items():
         if name not in params:
             raise ValueError(f'unknown parameter {name!r}')
@@ -78,8 +78,7 @@ class ReplayResult:
 def replay(bag, params):
     """Run the localizer core over a bag's recorded inputs; returns a ReplayResult."""
     from .train_localizer_node import TrainLocalizerNode    # the node's config builder
-    config = TrainLocalizerNode._config(params)
-    lamp_map = LampMap.load(resolve_lamp_map_path(params.get('lamp_map_path', '')))
+    lamp_map, config = TrainLocalizerNode.setup(params)
     loc = Localizer(lamp_map, config)
     joiner = FrameJoiner()
     poses, truth, status, fix_ms = [], [], {}, []

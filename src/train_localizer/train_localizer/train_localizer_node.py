@@ -52,6 +52,7 @@ from .core.join import FrameJoiner, JoinConfig
 from .core.kalman import KalmanConfig
 from .core.localizer import Localizer, LocalizerConfig
 from .core.standstill import StandstillConfig
+from .core.track import Track
 
 _RIG = StereoRig()
 _DEG = math.pi / 180.0
@@ -63,6 +64,8 @@ PARAMETERS = (
     ('map_frame_id', 'map', _desc('Frame of the published poses.')),
     ('base_frame_id', 'base_link', _desc('Child frame of the odometry (the train head).')),
     ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
+    ('alignment', '', _desc("Track alignment (vlc_stereo_camera.core.alignment names: "
+                            "straight, curved_demo, ...); '' = the one the lamp map names.")),
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
     ('publish_on_fix', True, _desc('Also publish right after each fix (lower latency).')),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
@@ -185,9 +188,8 @@ class TrainLocalizerNode(Node):
             self.declare_parameter(name, default, descriptor)
         p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
         self.params = p
-        self.localizer_config = self._config(p)
-        path = resolve_lamp_map_path(p['lamp_map_path'])
-        self.lamp_map = LampMap.load(path)
+        self.lamp_map, self.localizer_config = self.setup(p)
+        path = resolve_lamp_map_path(p['lamp_map_path'], p['alignment'] or 'straight')
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
         self.joiner = FrameJoiner(JoinConfig(match_radius_px=p['join_match_radius_px'],
                                              timeout_s=p['join_timeout_s']))
@@ -220,11 +222,22 @@ class TrainLocalizerNode(Node):
         self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
                           clock=self._steady)
         self.get_logger().info(
-            f'lamp map {path} ({len(self.lamp_map)} lamps); range constraint '
+            f'lamp map {path} ({len(self.lamp_map)} lamps), track {self.localizer_config.fix.track.name}; range constraint '
             f'{p["use_range_constraint"]}, IMU attitude {p["use_imu_attitude"]}, exposure '
             f'stamping {p["use_exposure_stamping"]}, Kalman {p["use_kalman"]}')
 
     # ------------------------------------------------------------------ config
+    @classmethod
+    def setup(cls, p):
+        """(LampMap, LocalizerConfig) of a parameter dict; the track is the alignment
+        named by ``alignment`` or by the lamp map file (ValueError if unknown)."""
+        config = cls._config(p)
+        lamp_map = LampMap.load(resolve_lamp_map_path(p['lamp_map_path'],
+                                                      p['alignment'] or 'straight'))
+        config.fix.track = Track.for_lamp_map(lamp_map, p['alignment'],
+                                              config.fix.track_offset_yz_m)
+        return lamp_map, config
+
     @staticmethod
     def _config(p):
         geometry = RigGeometry.from_mount(

@@ -38,8 +38,8 @@ import numpy as np
 from vlc_stereo_camera.core.camera import StereoRig, mount_rotation
 
 from .observation import NS_PER_S
+from .track import Track
 
-_E_X = np.array([1.0, 0.0, 0.0])
 
 
 def skew(v):
@@ -124,6 +124,9 @@ class FixConfig:
         spot-centre biases; a systematic error).
     min_disparity_px : float
         Pairs with a smaller disparity (range beyond fx·b/d) are not used, px.
+    track : Track or None
+        The alignment ``base_link`` rides on (None: the straight line along map x with
+        ``track_offset_yz_m``; see :mod:`train_localizer.core.track`).
     attitude_weight_inflation : float
         Factor on the attitude covariance in the *weights* of the constrained fit (not
         in its reported variance). The attitude error is correlated over many frames,
@@ -138,6 +141,11 @@ class FixConfig:
     lamp_position_sigma_m: float = 0.005
     min_disparity_px: float = 4.0
     attitude_weight_inflation: float = 4.0
+    track: Track = None
+
+    def __post_init__(self):
+        if self.track is None:
+            self.track = Track(None, self.track_offset_yz_m)
 
 
 @dataclass
@@ -271,12 +279,14 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
     w = geometry.R_base_cam @ p_cam + geometry.t_base_cam            # paper eq. 13
     Rw = R_map_base @ w
     position = np.asarray(lamp_position_m, float) - Rw               # paper eq. 14
-    J_cam = -(R_map_base @ geometry.R_base_cam)[0]
+    chainage = config.track.chainage_of(position)
+    _, t, _ = config.track.frame(chainage)
+    J_cam = -t @ (R_map_base @ geometry.R_base_cam)
     # R_true = Exp(δθ)·R: p = lamp − Exp(δθ)·R·w ⇒ ∂p/∂δθ = [R·w]×
-    J_att = skew(Rw)[0]
+    J_att = t @ skew(Rw)
     var_random = float(J_cam @ cov_cam @ J_cam)
     var_sys = float(J_att @ cov_att @ J_att) + config.lamp_position_sigma_m ** 2
-    return FixResult(chainage_m=float(position[0]), var_m2=var_random + var_sys,
+    return FixResult(chainage_m=chainage, var_m2=var_random + var_sys,
                      var_random_m2=var_random, var_systematic_m2=var_sys,
                      chi2_geometry=float('nan'), position_m=position,
                      range_m=float(np.linalg.norm(p_cam)))
@@ -328,10 +338,9 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
     gain = (cov_post @ J.T @ W)[0]
     var_random = min(float(gain @ cov_cam @ gain), var)
     chi2 = float(e @ W @ e + dtheta @ prior_info @ dtheta)
-    y0, z0 = config.track_offset_yz_m
     return FixResult(chainage_m=s, var_m2=var, var_random_m2=var_random,
                      var_systematic_m2=var - var_random, chi2_geometry=chi2,
-                     position_m=np.array([s, y0, z0]), range_m=float(np.linalg.norm(p_cam)),
+                     position_m=config.track.position(s), range_m=float(np.linalg.norm(p_cam)),
                      attitude_error_rad=dtheta, attitude_error_cov_rad2=cov_post[1:, 1:])
 
 
@@ -342,26 +351,27 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     at the solution.
     """
     g = geometry
+    track = config.track
     lamp = np.asarray(lamp_position_m, float)
-    y0, z0 = config.track_offset_yz_m
     p_cam = np.asarray(p_cam, float)
     B = g.R_base_cam.T @ R_map_base.T                  # map vector → optical frame (IMU R)
     c = g.R_base_cam.T @ g.t_base_cam
-    A_yz = B[:, 1:]
-    cov_meas = (cov_cam + A_yz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_yz.T
+    # start: the paper's fix with the IMU attitude, put on the track
+    s = track.chainage_of(lamp - R_map_base @ (g.R_base_cam @ p_cam + g.t_base_cam))
+    _, _, n = track.frame(s)
+    A_nz = B @ np.column_stack([n, [0.0, 0.0, 1.0]])
+    cov_meas = (cov_cam + A_nz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_nz.T
                 + np.eye(3) * config.lamp_position_sigma_m ** 2)
     W = np.linalg.inv(cov_meas)
     prior_info = np.linalg.inv(cov_prior + np.eye(3) * 1e-14)
-    # start: s from the range along the IMU attitude's line of sight
-    H0 = -B[:, 0]
-    s = float(H0 @ (p_cam - B @ lamp + c)) / float(H0 @ H0)
     dtheta = np.zeros(3)
 
     def linearise():
         E = _exp_so3(-dtheta)
-        d = lamp - np.array([s, y0, z0])
-        # ∂h/∂s = −B·E·e_x; ∂h/∂δθ = B·E·[d]× (first order about the current δθ)
-        J = np.column_stack([-(B @ E)[:, 0], B @ E @ skew(d)])
+        P, t, _ = track.frame(s)
+        d = lamp - P
+        # ∂h/∂s = −B·E·t(s); ∂h/∂δθ = B·E·[d]× (first order about the current δθ)
+        J = np.column_stack([-(B @ E) @ t, B @ E @ skew(d)])
         N = J.T @ W @ J
         N[1:, 1:] += prior_info
         return J, N, p_cam - (B @ E @ d - c)

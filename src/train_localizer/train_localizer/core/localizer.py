@@ -169,6 +169,8 @@ class PoseEstimate:
         Angular rate in ``base_link`` (from the newest IMU sample before the stamp).
     kind : str
         ``grid`` (publish grid), ``fix`` (right after a fix) or ``raw`` (use_kalman off).
+    chainage_along_m, chainage_var_m2 : float
+        The chainage (m) and its variance (m²): ``position_m`` is the track's point there.
     """
 
     stamp_ns: int
@@ -180,13 +182,19 @@ class PoseEstimate:
     attitude_cov_rad2: np.ndarray
     angular_velocity_rps: np.ndarray
     kind: str
+    chainage_along_m: float = float('nan')
+    chainage_var_m2: float = float('nan')
 
     @property
     def chainage_m(self):
+        if math.isfinite(self.chainage_along_m):
+            return float(self.chainage_along_m)
         return float(self.position_m[0])
 
     @property
     def chainage_sigma_m(self):
+        if math.isfinite(self.chainage_var_m2):
+            return math.sqrt(self.chainage_var_m2)
         return math.sqrt(self.position_cov_m2[0, 0])
 
 
@@ -405,12 +413,24 @@ class Localizer:
             # Rigid body: f_imu = f_base + α×r + ω×(ω×r).
             f = f - np.cross(alpha, r) - np.cross(w, np.cross(w, r))
         self._prev_gyro = sample.gyro_rps
+        track = cfg.fix.track
         if cfg.use_imu_attitude and sample.quat_xyzw is not None:
             x, y, z, w = sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
             # First row of the rotation matrix: only the along-track component is needed.
-            return float((1.0 - 2.0 * (y * y + z * z)) * f[0] + 2.0 * (x * y - z * w) * f[1]
-                         + 2.0 * (x * z + y * w) * f[2])
+            row_x = ((1.0 - 2.0 * (y * y + z * z)), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w))
+            if track.straight_x:
+                return float(row_x[0] * f[0] + row_x[1] * f[1] + row_x[2] * f[2])
+            R = quat_to_matrix(np.array([x, y, z, w]))
+            return float(self._tangent() @ (R @ np.asarray(f, dtype=float)))
+        # no attitude: the platform is taken as aligned with the track (body x = tangent)
         return float(f[0])
+
+    def _tangent(self):
+        """Running direction (3,) at the newest chainage estimate (curved track)."""
+        state = self._x[-1] if self._x else None
+        if state is None:
+            return self.config.fix.track.frame(0.0)[1]
+        return self.config.fix.track.frame(float(state.x[0]))[1]
 
     def _zero_velocity(self, t):
         """Zero-velocity update at the newest step if the filter's speed allows it."""
@@ -737,11 +757,12 @@ class Localizer:
             return None, None, float('nan'), 'state too uncertain to predict the lamp'
         g = cfg.geometry
         lamp_from_base = prep.R @ (g.R_base_cam @ prep.p_cam + g.t_base_cam)
-        expected_x = state.x[0] + lamp_from_base[0]
+        track = cfg.fix.track
+        expected = track.chainage_of(track.position(float(state.x[0])) + lamp_from_base)
         # Wide enough that a second lamp inside the gate would be seen (and refused).
         window = icfg.association_window_m + math.sqrt(icfg.gate_chi2 * state.P[0, 0])
         candidates, fixes = [], {}
-        for lamp in self.lamp_map.near(expected_x, window, window):
+        for lamp in self.lamp_map.near_chainage(expected, window, window):
             fix, geometry_ok = self._fix_for(prep, lamp)
             y, S = innovation(state, fix.chainage_m, fix.var_m2)
             d2 = mahalanobis2(y, S) if geometry_ok else math.inf
@@ -809,8 +830,8 @@ class Localizer:
         cfg = self.config
         chain = [(prep.t_ns, fix)]
         anchor_t, anchor = prep.t_ns, fix
-        others = [other.position_m[0] - lamp.position_m[0]
-                  for other in self.lamp_map.near(lamp.position_m[0], 60.0, 60.0)
+        others = [other.track_chainage_m - lamp.track_chainage_m
+                  for other in self.lamp_map.near_chainage(lamp.track_chainage_m, 60.0, 60.0)
                   if other.uid != lamp.uid]
         for old in sorted(self._preinit, key=lambda p: -p.t_ns):
             if old.t_ns >= anchor_t:
@@ -873,16 +894,18 @@ class Localizer:
                                       fix.var_m2))
         if self._last_pub_ns is not None and t_m <= self._last_pub_ns:
             return
-        cov = self._position_cov(fix.var_m2)
+        cov = self._position_cov(fix.chainage_m, fix.var_m2)
         q, att_cov = self._orientation(t_m)
         report.poses.append(PoseEstimate(t_m, fix.position_m.copy(), cov, float('nan'),
-                                         float('nan'), q, att_cov, self._gyro_at(t_m), 'raw'))
+                                         float('nan'), q, att_cov, self._gyro_at(t_m), 'raw',
+                                         fix.chainage_m, fix.var_m2))
         self._last_pub_ns = t_m
 
     # ----------------------------------------------------------------- output
-    def _position_cov(self, chainage_var):
+    def _position_cov(self, chainage_m, chainage_var):
+        """Map covariance (3, 3): along the track, across it and vertical."""
         sy, sz = self.config.fix.track_sigma_yz_m
-        return np.diag([chainage_var, sy * sy, sz * sz])
+        return self.config.fix.track.covariance(chainage_m, chainage_var, sy * sy, sz * sz)
 
     def _orientation(self, t):
         q = self._att.at(t * 1e-9)
@@ -900,11 +923,12 @@ class Localizer:
 
     def _pose(self, t, kind):
         state = self._state_at(t)
-        cov = self._position_cov(state.P[0, 0] + self._systematic_var)
+        s = float(state.x[0])
+        var = float(state.P[0, 0] + self._systematic_var)
         q, att_cov = self._orientation(t)
-        y0, z0 = self.config.fix.track_offset_yz_m
-        return PoseEstimate(t, np.array([state.x[0], y0, z0]), cov, float(state.x[1]),
-                            float(state.P[1, 1]), q, att_cov, self._gyro_at(t), kind)
+        return PoseEstimate(t, self.config.fix.track.position(s), self._position_cov(s, var),
+                            float(state.x[1]), float(state.P[1, 1]), q, att_cov,
+                            self._gyro_at(t), kind, s, var)
 
     def _may_publish(self, t):
         """After a cold start, hold the output until the chainage 1σ is below

@@ -154,7 +154,7 @@ class SensorSimulator:
         k = self.rig.intrinsics
         s_now = float(self.trajectory.sample(t0_s).chainage_m[0])
         cam_x = s_now + self.rig.cam_positions_base()[0][0]
-        lamps = self.lamp_map.near(cam_x, 15.0, 2.0)
+        lamps = self.lamp_map.near_chainage(cam_x, 15.0, 2.0)
         observations, truth = [], []
         if not lamps:
             return to_stamp_ns(t0_s), observations, truth

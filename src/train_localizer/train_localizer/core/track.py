@@ -1,0 +1,83 @@
+"""The track the localizer's one unknown, the chainage, lives on.
+
+``base_link`` rides at a known lateral and vertical offset from the centreline of a
+horizontal alignment (``vlc_stereo_camera.core.alignment``: straights, clothoids,
+circular curves). The filter estimates the chainage ``s``; everything in ``map`` follows
+from the alignment: the nominal position ``P(s)``, the running direction ``t(s)`` and the
+left normal ``n(s)``. On the default straight alignment ``P(s) = (s, y0, z0)`` and
+``t = e_x`` exactly (a fast path: the fix evaluates the track in its inner loop).
+"""
+import math
+
+import numpy as np
+
+from vlc_stereo_camera.core.alignment import Alignment
+
+_E_X = np.array([1.0, 0.0, 0.0])
+_E_Y = np.array([0.0, 1.0, 0.0])
+_E_Z = np.array([0.0, 0.0, 1.0])
+
+
+class Track:
+    """An alignment with the nominal offsets of ``base_link`` from its centreline.
+
+    Parameters
+    ----------
+    alignment : Alignment or None
+        None = the straight line along map x (s = x).
+    offset_yz_m : (float, float)
+        Nominal lateral (left, along n) and vertical offset of ``base_link``, m.
+    """
+
+    def __init__(self, alignment=None, offset_yz_m=(0.0, 0.0)):
+        self.alignment = alignment if alignment is not None else Alignment.straight()
+        self.offset_yz_m = (float(offset_yz_m[0]), float(offset_yz_m[1]))
+        self.straight_x = self._is_map_x(self.alignment)
+
+    @classmethod
+    def for_lamp_map(cls, lamp_map, alignment_name='', offset_yz_m=(0.0, 0.0)):
+        """The track of a lamp map: ``alignment_name``, else the alignment the map file
+        names, else straight (ValueError for an unknown name)."""
+        name = alignment_name or getattr(lamp_map, 'alignment', '') or 'straight'
+        return cls(Alignment.named(name), offset_yz_m)
+
+    @staticmethod
+    def _is_map_x(alignment):
+        """True when the alignment is the line s = x (the fast path applies)."""
+        if not alignment.is_straight:
+            return False
+        p = alignment.evaluate(np.array([0.0, 1.0]))
+        return bool(np.allclose(p.x_m, [0.0, 1.0], atol=1e-12)
+                    and np.allclose(p.y_m, 0.0, atol=1e-12))
+
+    @property
+    def name(self):
+        return getattr(self.alignment, 'name', 'custom')
+
+    def frame(self, chainage_m):
+        """(P (3,), t (3,), n (3,)): nominal ``base_link`` position, tangent, left normal."""
+        y0, z0 = self.offset_yz_m
+        if self.straight_x:
+            return np.array([chainage_m, y0, z0]), _E_X, _E_Y
+        p = self.alignment.evaluate(chainage_m)
+        c, s = math.cos(p.heading_rad[0]), math.sin(p.heading_rad[0])
+        t = np.array([c, s, 0.0])
+        n = np.array([-s, c, 0.0])
+        return np.array([p.x_m[0], p.y_m[0], 0.0]) + y0 * n + z0 * _E_Z, t, n
+
+    def position(self, chainage_m):
+        """Nominal ``base_link`` position (3,) in map at a chainage."""
+        return self.frame(chainage_m)[0]
+
+    def chainage_of(self, xyz_m):
+        """Chainage of the foot point of a map position (3,) on the centreline, m."""
+        if self.straight_x:
+            return float(xyz_m[0])
+        s, _ = self.alignment.project(xyz_m[0], xyz_m[1])
+        return float(s[0])
+
+    def covariance(self, chainage_m, along_var, lateral_var, vertical_var):
+        """Map-frame position covariance (3, 3) from along/lateral/vertical variances."""
+        _, t, n = self.frame(chainage_m)
+        return (along_var * np.outer(t, t) + lateral_var * np.outer(n, n)
+                + vertical_var * np.outer(_E_Z, _E_Z))
