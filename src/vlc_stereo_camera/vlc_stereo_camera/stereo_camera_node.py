@@ -75,8 +75,9 @@ NODE_PARAMETERS = (
                                                          ptype=_STR)),
     ('right_frame_id', 'camera_right_optical_frame', _desc('Right image and camera_info '
                                                            'frame.', ptype=_STR)),
-    ('lamp_map_path', '', _desc("Lamp map YAML; '' = share/vlc_stereo_camera/config/"
-                                'lamp_map.yaml.', ptype=_STR)),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = the installed map of the alignment "
+                                '(share/vlc_stereo_camera/config/lamp_map.yaml for straight, '
+                                'lamp_map_<alignment>.yaml otherwise).', ptype=_STR)),
     ('image_width', 1280, _desc('Image width, px.', 64, 4096, integer=True)),
     ('image_height', 720, _desc('Image height (rows), px.', 48, 4096, integer=True)),
     ('fx', 1040.0, _desc('Focal length, px (3.9 mm / 3.75 um).', 50.0, 10000.0)),
@@ -221,7 +222,8 @@ class StereoCameraNode(Node):
             **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
         renderer_config = cfg.renderer_config(self.scenario.epoch_s)
         trajectory = self.scenario.trajectory()
-        lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path))
+        lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
+                                                      self.scenario.alignment))
         self.renderer = StereoRenderer(renderer_config, lamp_map, trajectory,
                                        seed=self.scenario.seed)
         self._infos = self.renderer.camera_info_dicts()

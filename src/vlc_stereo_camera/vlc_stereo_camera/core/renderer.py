@@ -157,7 +157,8 @@ class LampTruth:
     (seconds since the epoch), the exposure mid-time of the row v_left (fixed point, see
     the module docstring). ``depth_m``: left optical z of the disc centre then;
     ``range_m``: distance from the left optical centre; ``along_track_m``: lamp chainage
-    minus base_link x in map at ``t_centre_s``; ``viewing_angle_deg``: angle between
+    minus base_link's chainage (its foot point on the alignment; map x on a straight) at
+    ``t_centre_s``; ``viewing_angle_deg``: angle between
     the line of sight and the disc normal. ``rows_left``/``rows_right``: (first, last)
     image rows where the disc covers pixels (before the PSF), None if none.
     ``in_left``/``in_right``: the projected centre lies inside that image.
@@ -383,9 +384,15 @@ class StereoRenderer:
         cos_phi = line_of_sight @ g.lamp.normal / np.linalg.norm(line_of_sight)
         return dict(t_centre_s=t_c, uv_left=uv_l[0], uv_right=uv_r[0],
                     depth_m=float(p_l[2]), range_m=float(np.linalg.norm(p_l)),
-                    along_track_m=float(g.centre[0] - s.position_m[0, 0]),
+                    along_track_m=float(g.lamp.track_chainage_m - self._base_chainage(s)),
                     viewing_angle_deg=float(np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))),
                     cos_phi=float(cos_phi))
+
+    def _base_chainage(self, sample):
+        """Chainage of base_link's foot point on the alignment (its map x on a straight)."""
+        chainage, _ = self.trajectory.alignment.project(sample.position_m[:1, 0],
+                                                         sample.position_m[:1, 1])
+        return float(chainage[0])
 
     # ---------------------------------------------------------------- ROI
     def _rim_box(self, g, t_s, camera):
