@@ -11,6 +11,8 @@ FILES = {
     'vlc_decoder_node': SRC / 'vlc_decoder/config/vlc_decoder_node.yaml',
     'spot_locator_node': SRC / 'spot_locator/config/spot_locator_node.yaml',
     'train_localizer_node': SRC / 'train_localizer/config/train_localizer_node.yaml',
+    'dead_reckoning_node': SRC / 'companion_localizers/config/dead_reckoning_node.yaml',
+    'ins_beacon_node': SRC / 'companion_localizers/config/ins_beacon_node.yaml',
 }
 
 

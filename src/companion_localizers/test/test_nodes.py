@@ -1,0 +1,272 @@
+"""The three companion nodes in-process: parameters, messages in and out, bad input.
+
+The callbacks are driven directly with messages in the producers' own layouts
+(photodiode_node's records, spot_locator's PAIR_DTYPE, vlc_decoder's LAMP_DTYPE,
+imu_compensator's Imu) and the publishers are replaced by lists, so the tests are
+deterministic; the DDS path is the graph test's.
+"""
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+import yaml  # noqa: E402
+from rclpy.exceptions import ParameterException  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
+from std_msgs.msg import Header  # noqa: E402
+
+from companion_localizers import frame_node  # noqa: E402
+from companion_localizers.core.simulated_run import LAMPS  # noqa: E402
+from companion_localizers.dead_reckoning_node import DeadReckoningNode  # noqa: E402
+from companion_localizers.ins_beacon_node import InsBeaconNode  # noqa: E402
+from companion_localizers.rssi_localizer_node import PARAMETERS, RssiLocalizerNode  # noqa: E402
+from imu_compensator.core.rotations import quat_from_rpy  # noqa: E402
+from spot_locator.conversions import PAIR_DTYPE  # noqa: E402
+from train_localizer.conversions import ns_to_stamp  # noqa: E402
+from train_localizer.core.simulation import (SensorErrors, SensorSimulator,  # noqa: E402
+                                             event_stream)
+from vlc_decoder.conversions import LAMP_DTYPE  # noqa: E402
+from vlc_stereo_camera.core.camera import StereoRig  # noqa: E402
+from vlc_stereo_camera.core.photodiode import Photodiode, PhotodiodeConfig  # noqa: E402
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration  # noqa: E402
+from vlc_stereo_camera.photodiode_node import (CHANNEL_PARAMETERS, RSSI_DTYPE,  # noqa: E402
+                                               sample_records)
+from vlc_stereo_camera.pointcloud import records_to_cloud  # noqa: E402
+
+PKG = pathlib.Path(__file__).resolve().parents[1]
+EPOCH_NS = 1704067200 * 10 ** 9
+
+
+def _yaml(path):
+    return yaml.safe_load(path.read_text())['/**']['ros__parameters']
+
+
+@pytest.mark.parametrize('name, table', [
+    ('rssi_localizer_node', CHANNEL_PARAMETERS + PARAMETERS),
+    ('dead_reckoning_node', frame_node.COMMON_PARAMETERS + DeadReckoningNode.EXTRA_PARAMETERS),
+    ('ins_beacon_node', frame_node.COMMON_PARAMETERS + InsBeaconNode.EXTRA_PARAMETERS)])
+def test_config_files_document_every_parameter_with_its_default(name, table):
+    assert _yaml(PKG / 'config' / f'{name}.yaml') == {k: v for k, v, _ in table}
+
+
+def test_rssi_channel_keys_equal_the_photodiodes():
+    pd = _yaml(PKG.parent / 'vlc_stereo_camera' / 'config' / 'photodiode_node.yaml')
+    rssi = _yaml(PKG / 'config' / 'rssi_localizer_node.yaml')
+    assert {k: rssi[k] for k, _, _ in CHANNEL_PARAMETERS} == \
+        {k: pd[k] for k, _, _ in CHANNEL_PARAMETERS}
+
+
+@pytest.fixture
+def ctx(ros_env):
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    made = []
+    yield context, made
+    for node in made:
+        node.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def _make(ctx, cls, **params):
+    context, made = ctx
+    node = cls(context=context,
+               parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    node.poses, node.diags = [], []
+    node.pub_pose.publish = node.poses.append
+    node.pub_diag.publish = node.diags.append
+    made.append(node)
+    return node
+
+
+def _header(stamp_ns, frame='camera_left_optical_frame'):
+    return Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame)
+
+
+def _imu(sample):
+    msg = Imu(header=_header(sample.stamp_ns, 'base_link'))
+    a, w, q = sample.accel_mps2, sample.gyro_rps, sample.quat_xyzw
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = map(float, a)
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = map(float, w)
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
+    msg.orientation_covariance = [float(v) for v in sample.attitude_cov_rad2.ravel()]
+    return msg
+
+
+def _spots(stamp_ns, observations):
+    rec = np.zeros(len(observations), dtype=PAIR_DTYPE)
+    for i, o in enumerate(observations):
+        rec[i]['u_left'], rec[i]['v_left'] = o.uv_left
+        rec[i]['u_right'], rec[i]['v_right'] = o.uv_right
+        rec[i]['disparity'] = o.disparity_px
+        rec[i]['stamp_offset_s'] = math.nan
+        for f in ('sigma_u_left', 'sigma_v_left', 'sigma_u_right', 'sigma_v_right'):
+            rec[i][f] = o.sigma_u_px
+        rec[i]['sigma_disparity'] = math.sqrt(2.0) * o.sigma_u_px
+    return records_to_cloud(rec, _header(stamp_ns))
+
+
+def _lamps(stamp_ns, observations):
+    rec = np.zeros(len(observations), dtype=LAMP_DTYPE)
+    for i, o in enumerate(observations):
+        rec[i]['track_id'] = i + 1
+        rec[i]['uid'] = o.uid or 0
+        rec[i]['state'] = 2 if o.uid is not None else 1
+        rec[i]['left_u'], rec[i]['left_v'] = o.uv_left[0] + 0.6, o.uv_left[1] - 0.4
+    return records_to_cloud(rec, _header(stamp_ns))
+
+
+def _simulated(speed_kmh=60.0, t_end=3.0, seed=2):
+    traj = Trajectory(MotionProfile('constant', start_chainage_m=3.0, speed_mps=speed_kmh / 3.6),
+                      Vibration(seed=seed))
+    sim = SensorSimulator(traj, StereoRig(), LAMPS, SensorErrors(), np.random.default_rng(seed))
+    return traj, event_stream(sim, 0.0, t_end)
+
+
+def _drive(node, events, edit=None):
+    for _, kind, payload in events:
+        if kind == 'imu':
+            node._on_imu(_imu(payload))
+        else:
+            stamp, observations, truth = payload
+            if edit is not None:
+                edit(stamp, observations, truth)
+            node._on_spots(_spots(stamp, observations))
+            node._on_lamps(_lamps(stamp, observations))
+
+
+def _errors(node, traj):
+    t = np.array([(m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec - EPOCH_NS) * 1e-9
+                  for m in node.poses])
+    p = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in node.poses])
+    return np.linalg.norm(p - traj.sample(t).position_m, axis=1), t
+
+
+@pytest.mark.parametrize('cls', [DeadReckoningNode, InsBeaconNode])
+def test_frame_nodes_publish_poses_against_truth_on_the_grid(ctx, cls):
+    node = _make(ctx, cls)
+    traj, events = _simulated()
+    _drive(node, events)
+    err, t = _errors(node, traj)
+    assert len(node.poses) > 50
+    assert err.max() < (1.0 if cls is DeadReckoningNode else 0.15)
+    assert np.all(np.diff(t) > 0)
+    assert np.allclose(np.round(t * 50.0), t * 50.0, atol=1e-6)       # 50 Hz grid
+    assert node.poses[0].header.frame_id == 'map'
+    node._publish_diagnostics()
+    values = {kv.key: kv.value for kv in node.diags[-1].status[0].values}
+    assert int(values['poses_published']) == len(node.poses)
+    assert float(values['processing_ms_median']) >= 0.0
+    assert node.diags[-1].status[0].name == f'{node.get_name()}: {cls.METHOD}'
+
+
+def test_ins_node_reports_a_forged_lamp_on_diagnostics(ctx):
+    node = _make(ctx, InsBeaconNode)
+    traj, events = _simulated(seed=4, t_end=3.5)
+
+    def forge(stamp, observations, truth):
+        for obs, tr in zip(observations, truth):
+            if LAMPS.by_uid(tr['uid']).position_m[0] == 40.0 and obs.uid is not None:
+                obs.uid = 0x1007                  # the lamp at 40 m claims lamp 7 (70 m)
+
+    _drive(node, events, forge)
+    node._publish_diagnostics()
+    status = node.diags[-1].status[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == bytes([1])                     # WARN
+    assert '0x1007' in status.message and 'forged or misplaced' in status.message
+    assert values['last_flagged_uid'] == '0x1007'
+    assert values['last_flag_verdict'] == 'distance_mismatch'
+    err, _ = _errors(node, traj)
+    assert err.max() < 0.2
+
+
+def test_frame_node_survives_bad_input(ctx):
+    node = _make(ctx, InsBeaconNode)
+    traj, events = _simulated(t_end=1.5)
+    _drive(node, events)
+    n = len(node.poses)
+    broken = PointCloud2(header=_header(EPOCH_NS), height=1, width=1, point_step=8,
+                         fields=[PointField(name='u_left', offset=0, datatype=7, count=1)],
+                         data=bytes(8))
+    node._on_spots(broken)
+    truncated = _spots(EPOCH_NS, [o for _, k, p in events if k == 'frame' for o in p[1]][:1])
+    truncated.data = truncated.data[:10]
+    node._on_spots(truncated)
+    last = [p for _, k, p in events if k == 'imu'][-1]
+    bad = _imu(last)
+    bad.linear_acceleration.x = float('nan')
+    node._on_imu(bad)                                     # non-finite: refused
+    node._on_imu(_imu(last))                              # not newer: refused
+    assert node.core.counters.imu_rejected == 2
+    assert len(node.poses) == n
+
+
+def _pd_messages(t_end=2.0, seed=3, speed_kmh=60.0):
+    traj = Trajectory(MotionProfile('constant', start_chainage_m=12.0, speed_mps=speed_kmh / 3.6),
+                      Vibration(seed=seed))
+    pd = Photodiode(PhotodiodeConfig(), LAMPS, traj, seed=seed)
+    msgs = []
+    for n in range(int(t_end * 50)):
+        msgs.append(records_to_cloud(sample_records(pd.sample(n, 50.0)),
+                                     _header(EPOCH_NS + n * 20_000_000, 'photodiode_link')))
+    return traj, msgs
+
+
+def _rssi_imu(traj, t_s):
+    truth = traj.sample(t_s)
+    msg = Imu(header=_header(EPOCH_NS + int(round(t_s * 1e9)), 'base_link'))
+    q = quat_from_rpy(*truth.rpy_rad[0])
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
+    msg.orientation_covariance = [float(v) for v in np.diag(
+        np.square(np.radians([0.05, 0.05, 0.1]))).ravel()]
+    return msg
+
+
+def test_rssi_node_trilaterates_each_sample_against_truth(ctx):
+    node = _make(ctx, RssiLocalizerNode)
+    traj, msgs = _pd_messages()
+    k = 0
+    for n, msg in enumerate(msgs):
+        while k * 0.0025 <= n * 0.02 + 0.01:               # imu/data up to the sample
+            node._on_imu(_rssi_imu(traj, k * 0.0025))
+            k += 1
+        node._on_rssi(msg)
+    err, t = _errors(node, traj)
+    assert len(node.poses) > 0.8 * len(msgs)
+    assert err.max() < 0.3923 and err.mean() < 0.1336
+    assert node._counts['no_attitude'] == 0
+    node._publish_diagnostics()
+    values = {kv.key: kv.value for kv in node.diags[-1].status[0].values}
+    assert int(values['outcome_ok']) == len(node.poses)
+    assert float(values['processing_ms_median']) > 0.0
+
+
+def test_rssi_node_survives_bad_input(ctx):
+    node = _make(ctx, RssiLocalizerNode, use_imu_attitude=False)
+    traj, msgs = _pd_messages(t_end=0.2)
+    rec = np.zeros(3, dtype=RSSI_DTYPE)
+    rec['uid'] = [0x7ABC, 4098, 4099]                    # unknown UID, then a NaN power
+    rec['power_w'] = [1e-6, math.nan, 1e-6]
+    node._on_rssi(records_to_cloud(rec, _header(EPOCH_NS + 10 ** 9)))
+    assert node._counts['unknown_uid'] == 1 and node._counts['bad_records'] == 1
+    node._on_rssi(msgs[0])                                # older than the last: skipped
+    assert node._counts['out_of_order'] == 1
+    missing = PointCloud2(header=_header(EPOCH_NS + 2 * 10 ** 9), height=1, width=1,
+                          point_step=4, data=bytes(4),
+                          fields=[PointField(name='uid', offset=0, datatype=6, count=1)])
+    node._on_rssi(missing)
+    assert node._counts['bad_records'] == 2
+    assert node.poses == []
+
+
+@pytest.mark.parametrize('cls, params', [
+    (RssiLocalizerNode, {'solve_mode': 'best'}),
+    (RssiLocalizerNode, {'tilt_prior_sigma_deg': [0.3]}),
+    (InsBeaconNode, {'attitude_sigma_deg': [0.1, 0.1]}),
+    (DeadReckoningNode, {'window_samples': 0})])
+def test_invalid_parameters_stop_the_node(ctx, cls, params):
+    with pytest.raises((ValueError, ParameterException)):
+        _make(ctx, cls, **params)
