@@ -1,6 +1,8 @@
 """``spot_benchmark``: accuracy and speed of the spot locator against the rig's truth.
 
-Renders stereo frames with the rig's renderer (``vlc_stereo_camera.core.renderer``) and
+Renders stereo frames with the rig's renderer (``vlc_stereo_camera.core.renderer``) at
+the graph's camera timing (chip rate, row time, exposure, off level and frame rate read
+from the installed ``stereo_camera_node.yaml``, not the core's protocol defaults) and
 scores every centre method against the ground truth (projected disc centres at the
 exposure mid-time of their row), then prints Markdown tables and, unless ``--no-write``,
 replaces the generated sections of docs/arch/spot_locator.md and writes
@@ -18,32 +20,40 @@ import time
 
 import cv2
 import numpy as np
+import yaml
 
 from .core import eccentricity as ecc
 from .core import synth
-from .core.detection import detect_spots
+from .core.centres import ChordConfig
+from .core.detection import DetectConfig, detect_spots
 from .core.locator import (FLAG_CUT_BY_BORDER, METHODS, LocatorConfig, SpotLocator,
                            StereoGeometry)
 
 DISTANCES_M = np.round(np.arange(0.5, 10.01, 0.5), 2)
 SPEEDS_KMH = (100.0, 120.0)
 LAMP_CHAINAGE_M = 20.0
-# (label, method, eccentricity): the paper's three estimators as published (no
-# eccentricity correction), then the chord fit without and with the corrections.
+# (label, method, eccentricity, two-pass chord fit with the local background): the
+# paper's three estimators as published (no eccentricity correction), then the chord fit
+# without and with the corrections; "1 pass" is the chord fit before its second pass and
+# the spot's local background level (each row measured over its own thresholded support,
+# the frame's background subtracted).
 STATIC_CONFIGS = (
-    ('centroid', 'centroid', 'off'),
-    ('ellipse', 'ellipse', 'off'),
-    ('fused (paper)', 'fused', 'off'),
-    ('fused + ecc', 'fused', 'conic'),
-    ('chord', 'chord', 'off'),
-    ('chord + ecc nominal', 'chord', 'nominal'),
-    ('chord + ecc conic', 'chord', 'conic'),
+    ('centroid', 'centroid', 'off', True),
+    ('ellipse', 'ellipse', 'off', True),
+    ('fused (paper)', 'fused', 'off', True),
+    ('fused + ecc', 'fused', 'conic', True),
+    ('chord', 'chord', 'off', True),
+    ('chord + ecc conic, 1 pass', 'chord', 'conic', False),
+    ('chord + ecc nominal', 'chord', 'nominal', True),
+    ('chord + ecc conic', 'chord', 'conic', True),
 )
+# the graph's camera timing: these keys of the camera node's parameter file
+TIMING_KEYS = ('fps', 'row_time_s', 'exposure_s', 'chip_rate_hz', 'off_level')
 DEFAULT_LABEL = 'chord + ecc conic'
 TARGET_U_PX = 0.05
 TARGET_BIAS_PX = 0.02
 TARGET_MS = 5.0
-REPEATS = 3
+REPEATS = 9
 
 
 def _rig_modules():
@@ -57,12 +67,26 @@ def _rig_modules():
                 uid_of=uid_of)
 
 
-class Bench:
-    """Shared rig objects and locator factories."""
+def graph_timing():
+    """Camera timing of the graph: TIMING_KEYS from the installed stereo_camera_node.yaml."""
+    from ament_index_python.packages import get_package_share_directory
+    path = (pathlib.Path(get_package_share_directory('vlc_stereo_camera')) / 'config'
+            / 'stereo_camera_node.yaml')
+    params = yaml.safe_load(path.read_text(encoding='utf-8'))['/**']['ros__parameters']
+    return {key: float(params[key]) for key in TIMING_KEYS}
 
-    def __init__(self):
+
+class Bench:
+    """Shared rig objects and locator factories.
+
+    ``timing``: RendererConfig overrides (TIMING_KEYS), e.g. :func:`graph_timing`; the
+    locators get the same row time and exposure.
+    """
+
+    def __init__(self, timing=None):
         self.rig = _rig_modules()
-        self.config = self.rig['RendererConfig']()
+        self.timing = dict(timing or {})
+        self.config = self.rig['RendererConfig'](**self.timing)
         self.lamps = self.rig['LampMap'].load(self.rig['resolve'](''))
         stereo = self.config.rig()
         k = self.config.intrinsics
@@ -75,13 +99,15 @@ class Bench:
         self.velocity_cam = stereo.R_base_cam.T @ np.array([-1.0, 0.0, 0.0])
 
     def locator(self, method='chord', eccentricity='conic', wiener=False,
-                rolling_shutter_model=True):
+                rolling_shutter_model=True, two_pass=True):
         cfg = LocatorConfig(method=method, eccentricity=eccentricity, wiener=wiener,
                             rolling_shutter_model=rolling_shutter_model,
                             normal_cam=tuple(self.normal_cam),
                             train_velocity_cam_mps=tuple(self.velocity_cam),
                             row_time_s=self.config.row_time_s,
-                            exposure_s=self.config.exposure_s)
+                            exposure_s=self.config.exposure_s,
+                            detect=DetectConfig(local_background=two_pass),
+                            chord=ChordConfig(two_pass=two_pass))
         return SpotLocator(cfg, self.geometry)
 
     def frame(self, distance_m, seed, speed_kmh=0.0, lamps=None):
@@ -121,7 +147,7 @@ def _score(pairs, truth):
 def run_static(bench, trials):
     """errors[label][distance] = list of (du_l, du_r, dd, sigma_u) ; views[distance]."""
     uid = bench.lamps.near(LAMP_CHAINAGE_M, 0.1, 0.1)[0].uid
-    locators = {label: bench.locator(m, e) for label, m, e in STATIC_CONFIGS}
+    locators = {label: bench.locator(m, e, two_pass=t) for label, m, e, t in STATIC_CONFIGS}
     errors = {label: {d: [] for d in DISTANCES_M} for label in locators}
     views = {d: [0, 0] for d in DISTANCES_M}           # (in view, paired by default)
     for d in DISTANCES_M:
@@ -419,6 +445,9 @@ def _workspace():
     return pathlib.Path.cwd()
 
 
+SECTIONS = ('static', 'eccentricity', 'dynamic', 'timing', 'analytic')
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('--trials', type=int, default=10, help='seeds per range (static)')
@@ -427,33 +456,60 @@ def main(argv=None):
     parser.add_argument('--timing-frames', type=int, default=60)
     parser.add_argument('--no-write', action='store_true', help='only print the tables')
     parser.add_argument('--workspace', type=pathlib.Path, default=None)
+    parser.add_argument('--timing', choices=('graph', 'protocol'), default='graph',
+                        help="camera timing: the graph's (stereo_camera_node.yaml) or the "
+                        "core's protocol defaults (10 kchip/s, 50 us)")
+    parser.add_argument('--sections', default=','.join(SECTIONS),
+                        help='comma-separated sections to run and rewrite (default: all of '
+                        + ', '.join(SECTIONS) + ')')
     args = parser.parse_args(argv)
+    chosen = [name.strip() for name in args.sections.split(',') if name.strip()]
+    unknown = sorted(set(chosen) - set(SECTIONS))
+    if unknown:
+        parser.error(f'unknown sections {unknown}; choose from {SECTIONS}')
     ws = args.workspace or _workspace()
-    bench = Bench()
-    t0 = time.monotonic()
+    bench = Bench(graph_timing() if args.timing == 'graph' else None)
+    c = bench.config
+    timing_text = (f'{args.timing} camera timing: {c.chip_rate_hz / 1e3:.0f} kchip/s, exposure '
+                   f'{c.exposure_s * 1e6:.0f} µs, row time {c.row_time_s * 1e6:.0f} µs, '
+                   f'off level {c.off_level:.2f}')
+    command = {'static': f'--trials {args.trials}', 'eccentricity': '',
+               'dynamic': f'--dynamic-trials {args.dynamic_trials}',
+               'timing': f'--timing-frames {args.timing_frames}', 'analytic': ''}
     sections = {}
-
-    errors, views = run_static(bench, args.trials)
-    static, verdict = static_tables(errors, views, args.trials)
-    sections['static'] = '\n'.join([static['u_rms'], static['d_mean'], static['d_std'],
-                                    verdict])
-    sections['eccentricity'] = eccentricity_table(bench)
-    dyn_d = np.array([1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
-    dyn_errors, blur = run_dynamic(bench, args.dynamic_trials, dyn_d)
-    sections['dynamic'] = dynamic_table(dyn_errors, blur, dyn_d, args.dynamic_trials)
-    timing, timing_verdict = timing_table(bench, args.timing_frames)
-    sections['timing'] = timing + '\n' + timing_verdict
-    sections['analytic'] = analytic_table(20)
-    sections['run'] = (f'Generated by `spot_benchmark --trials {args.trials} --dynamic-trials '
-                       f'{args.dynamic_trials} --timing-frames {args.timing_frames}` in '
-                       f'{time.monotonic() - t0:.0f} s.')
-    for name, body in sections.items():
-        print(f'## {name}\n\n{body}\n')
+    errors = None
+    for name in chosen:
+        t0 = time.monotonic()
+        if name == 'static':
+            errors, views = run_static(bench, args.trials)
+            static, verdict = static_tables(errors, views, args.trials)
+            body = '\n'.join([static['u_rms'], static['d_mean'], static['d_std'], verdict])
+        elif name == 'eccentricity':
+            body = eccentricity_table(bench)
+        elif name == 'dynamic':
+            dyn_d = np.array([1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+            dyn_errors, blur = run_dynamic(bench, args.dynamic_trials, dyn_d)
+            body = dynamic_table(dyn_errors, blur, dyn_d, args.dynamic_trials)
+        elif name == 'timing':
+            timing, timing_verdict = timing_table(bench, args.timing_frames)
+            body = timing + '\n' + timing_verdict
+        else:
+            body = analytic_table(20)
+        # each section says how it was made: sections can be regenerated one at a time
+        options = ' '.join(filter(None, [command[name], f'--timing {args.timing}',
+                                         f'--sections {name}']))
+        sections[name] = (f'{body.rstrip()}\n\n_Generated by `spot_benchmark {options}` '
+                          f'({timing_text}) in {time.monotonic() - t0:.0f} s._')
+        print(f'## {name}\n\n{sections[name]}\n', flush=True)
     if not args.no_write:
-        write_sections(ws / 'docs' / 'arch' / 'spot_locator.md', sections)
-        plot(errors, ws / 'docs' / 'images' / 'spot_error_vs_range.png')
-        print(f'wrote {ws / "docs" / "arch" / "spot_locator.md"} and '
-              f'{ws / "docs" / "images" / "spot_error_vs_range.png"}')
+        doc = ws / 'docs' / 'arch' / 'spot_locator.md'
+        write_sections(doc, sections)
+        written = [str(doc)]
+        if errors is not None:
+            png = ws / 'docs' / 'images' / 'spot_error_vs_range.png'
+            plot(errors, png)
+            written.append(str(png))
+        print('wrote ' + ' and '.join(written))
 
 
 if __name__ == '__main__':

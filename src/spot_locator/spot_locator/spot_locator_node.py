@@ -26,6 +26,12 @@ processing from a drop-oldest queue of ``queue_depth`` stereo pairs, so the exec
 never blocks on image work. Bad input (unknown encoding, empty or truncated image,
 left/right size mismatch, unpaired or out-of-order stamps) gives a throttled warning and
 is skipped.
+
+State: only the stereo pairing (images waiting for their partner, the newest paired
+stamp) and the latest odometry speed (aged by receipt time); the locator itself keeps
+nothing between frames. A stamp more than ``backward_reset_s`` older than the newest
+paired one (a looped bag replay, a restarted camera) clears the pairing state with a
+throttled warning, so the replay is processed instead of being dropped as out of order.
 """
 from collections import deque, OrderedDict
 from dataclasses import dataclass
@@ -118,6 +124,10 @@ NODE_PARAMETERS = (
                              1, 100, integer=True)),
     ('max_pending_stamps', 10, _desc('Unpaired images kept per side while waiting for the '
                                      'other side.', 1, 1000, integer=True)),
+    ('backward_reset_s', 1.0, _desc('An image stamp this much older than the newest paired '
+                                    'one (a looped bag replay) resets the stereo pairing; a '
+                                    'smaller step back is dropped as out of order, s.',
+                                    1e-3, 1e6)),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.',
                                         0.05, 3600.0)),
 )
@@ -157,6 +167,7 @@ class SpotLocatorNodeConfig:
     max_area_ratio: float
     queue_depth: int
     max_pending_stamps: int
+    backward_reset_s: float
     diagnostics_period_s: float
 
     def locator_config(self):
@@ -218,9 +229,10 @@ class SpotLocatorNode(Node):
         self._stop = False
         self._last_stamp_ns = -1
         self._speed = (cfg.assumed_speed_mps, -np.inf)
+        self._backward_reset_ns = int(round(cfg.backward_reset_s * 1e9))
         self._stats = dict(frames=0, pairs=0, dropped=0, bad_image=0, unpaired=0,
-                           out_of_order=0, no_camera_info=0, size_mismatch=0, failed=0,
-                           unmatched=0, border=0)
+                           out_of_order=0, stamp_resets=0, no_camera_info=0,
+                           size_mismatch=0, failed=0, unmatched=0, border=0)
         self._proc_ms = deque(maxlen=200)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -273,6 +285,16 @@ class SpotLocatorNode(Node):
         stamp = _stamp_ns(msg.header.stamp)
         other = 1 - index
         with self._lock:
+            jump_ns = self._last_stamp_ns - stamp
+            reset = self._last_stamp_ns >= 0 and jump_ns > self._backward_reset_ns
+            if reset:
+                # time went back (a looped bag, a restarted camera): what waits for a
+                # partner belongs to the old timeline, and the new one starts afresh
+                for side in self._pending:
+                    self._stats['unpaired'] += len(side)
+                    side.clear()
+                self._last_stamp_ns = -1
+                self._stats['stamp_resets'] += 1
             if stamp <= self._last_stamp_ns:
                 self._stats['out_of_order'] += 1
                 late = True
@@ -301,6 +323,9 @@ class SpotLocatorNode(Node):
                         self._stats['dropped'] += 1
                     self._queue.append(pair)
                     self._wake.notify()
+        if reset:
+            self._warn(f'image stamp jumped back by {jump_ns * 1e-9:.3f} s (more than '
+                       'backward_reset_s); stereo pairing reset')
         if late:
             self._warn(f'image stamp {stamp} ns is not newer than the last paired stamp; '
                        'skipped')

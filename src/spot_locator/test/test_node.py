@@ -190,6 +190,29 @@ def test_bad_input_is_skipped_with_a_warning_and_the_node_keeps_running(harness)
     assert h.diags[-1].status[0].level != b'\x00'    # WARN: input was skipped
 
 
+def test_a_stamp_jumping_back_resets_the_pairing_and_the_replay_is_processed(harness):
+    """A looped bag: stamps restart 3.3 s earlier; the node resets instead of dropping."""
+    h = harness(backward_reset_s=1.0)
+    h.send_infos()
+    left, right = _scene(seed=4)
+    lf, rf = 'camera_left_optical_frame', 'camera_right_optical_frame'
+    for k in (100, 101):
+        h.send(_image(left, k, lf), _image(right, k, rf))
+    h.send(_image(left, 102, lf), None, wait_for_cloud=False)      # its partner never comes
+    h.send(_image(left, 99, lf), _image(right, 99, rf), wait_for_cloud=False)   # 67 ms back
+    assert len(h.clouds) == 2
+    for k in (1, 2):                                                 # the replay starts over
+        h.send(_image(left, k, lf), _image(right, k, rf))
+    assert [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in h.clouds] == [
+        EPOCH_NS + k * FRAME_NS for k in (100, 101, 1, 2)]
+    assert len(conversions.cloud_to_records(h.clouds[-1])) == 1
+    stats = h.stats()
+    assert stats['stamp_resets'] == '1'
+    assert int(stats['out_of_order']) == 2 and stats['frames'] == '4'
+    assert stats['unpaired'] == '1'                                  # left 102
+    assert not h.node._pending[0] and not h.node._pending[1]
+
+
 def test_odometry_speed_sets_the_blur_length(harness):
     h = harness(wiener=True)
     h.send_infos()

@@ -22,6 +22,7 @@ uses every lit row at its own gain and needs no morphological closing, so the st
 cause no bias.
 """
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -134,17 +135,19 @@ def circularity(contour_uv):
 
 def conic_axes(Q):
     """Semi-axes (a ≥ b) in px of the ellipse with conic matrix ``Q``, or None."""
-    A2 = Q[:2, :2]
-    try:
-        c = np.linalg.solve(A2, -Q[:2, 2])
-    except np.linalg.LinAlgError:
+    (p, q, d), (_, r, e), (_, _, f) = np.asarray(Q, float).tolist()
+    det = p * r - q * q
+    if det == 0.0:
         return None
-    k = float(c @ A2 @ c - Q[2, 2])
-    lam = np.linalg.eigvalsh(A2)
-    if k == 0.0 or np.any(lam * k <= 0.0):
+    # centre c = −A⁻¹ (d, e); the conic there equals f − (d, e)·A⁻¹·(d, e), whose negative
+    # is k in (x − c)ᵀ A (x − c) = k
+    k = (d * (r * d - q * e) + e * (p * e - q * d)) / det - f
+    mean, diff = 0.5 * (p + r), np.hypot(0.5 * (p - r), q)
+    lam = (mean - diff, mean + diff)                 # eigenvalues of the 2×2 part
+    if k == 0.0 or lam[0] * k <= 0.0 or lam[1] * k <= 0.0:
         return None
-    axes = np.sqrt(k / lam)
-    return float(axes.max()), float(axes.min())
+    axes = sorted((np.sqrt(k / lam[0]), np.sqrt(k / lam[1])))
+    return float(axes[1]), float(axes[0])
 
 
 def ellipse_circularity(Q):
@@ -188,33 +191,164 @@ class ChordConfig:
         fraction of the largest one (optics-PSF and pixel-sampling errors that the noise
         does not describe; it keeps the narrow rows near the tips, whose widths the PSF
         distorts most, from dominating the fit).
+    edge_threshold_factor: a row's own support reaches past both ends of its chord only
+        when the row's peak exceeds this many detection thresholds (plus two noise σ):
+        its edge pixels then clear the threshold. A dimmer row (the residual light of a
+        dark stripe) passes the threshold in scattered pixels only, and the vertical
+        closing turns them into a window that cuts the chord short.
+    window_margin_px: second pass: each row is measured between the first-pass ellipse's
+        chord ends widened by this much (the optics PSF and the first pass's error), px.
+    plateau_margin_px: a row's plateau level is the mean of its pixels at least this far
+        inside its chord ends (fully covered, past the PSF edge), px: in the first pass
+        the chord its maximum implies, in the second the predicted one. Unlike the
+        maximum, which noise lifts most in the dimmest rows, the mean is unbiased.
+    two_pass: False keeps the single pass over each row's own support even when the
+        detection threshold is known (the method before the second pass; for comparison).
     """
 
     min_row_snr: float = 8.0
     min_chord_px: float = 2.0
     systematic_px: float = 0.02
     width_floor_fraction: float = 0.01
+    edge_threshold_factor: float = 2.0
+    window_margin_px: float = 2.0
+    plateau_margin_px: float = 1.5
+    two_pass: bool = True
 
 
-def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None):
+@dataclass
+class _Rows:
+    """Per-row measurements of a striped spot (ROI coordinates), one entry per row.
+
+    ``v`` row (px); ``S`` summed signal (DN); ``M`` first moment, the chord midpoint (px);
+    ``spread2`` Σ (u − M)² over the row's window (px², for the midpoint's noise); ``n_pix``
+    pixels in the window; ``P`` plateau level (DN) from ``n_core`` pixels (0: none);
+    ``clipped`` the window holds a saturated pixel.
+    """
+
+    v: np.ndarray
+    S: np.ndarray
+    M: np.ndarray
+    spread2: np.ndarray
+    n_pix: np.ndarray
+    P: np.ndarray
+    n_core: np.ndarray
+    clipped: np.ndarray
+
+    def take(self, mask):
+        return _Rows(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
+
+
+class _RowSums:
+    """Prefix sums along the rows of a ROI: any row window's sums in O(1).
+
+    ``s0[r, c]`` = Σ roi[r, :c], ``s1[r, c]`` = Σ u·roi[r, u] over u < c, ``n_sat[r, c]`` =
+    clipped pixels among the first c (None when nothing is clipped).
+    """
+
+    def __init__(self, roi, saturated=None):
+        w = roi.shape[1]
+        self.roi = roi
+        # one small matrix product per sum: far cheaper than np.cumsum along rows
+        prefix = _prefix_matrix(w)
+        self.s0 = roi @ prefix
+        self.s1 = (roi * np.arange(w, dtype=float)) @ prefix
+        self.n_sat = None
+        if saturated is not None and saturated.any():
+            self.n_sat = saturated.astype(float) @ prefix
+
+    def columns(self, lo, hi):
+        """First and last column (int) of the windows ``lo ≤ u ≤ hi``; empty: last < first."""
+        w = self.roi.shape[1]
+        c0 = np.minimum(np.maximum(np.ceil(lo), 0), w).astype(int)
+        c1 = np.minimum(np.maximum(np.floor(hi), -1), w - 1).astype(int)
+        return c0, np.maximum(c1, c0 - 1)
+
+    def peak(self, rows, c0, c1):
+        """Largest value of each row's window (−inf when empty)."""
+        w = self.roi.shape[1]
+        flat = np.empty(len(rows) * w + 1)
+        flat[:-1] = self.roi[rows].ravel()
+        flat[-1] = 0.0
+        start = np.arange(len(rows)) * w + c0
+        # maxima over [start, end) and over the gaps between windows, interleaved
+        bounds = np.column_stack([start, start + np.maximum(c1 - c0 + 1, 0)]).ravel()
+        out = np.maximum.reduceat(flat, np.minimum(bounds, len(flat) - 1))[::2]
+        return np.where(c1 >= c0, out, -np.inf)
+
+
+@lru_cache(maxsize=64)
+def _prefix_matrix(width):
+    """(width, width + 1) matrix U with U[j, c] = 1 for j < c: ``x @ U`` = prefix sums."""
+    return np.triu(np.ones((width + 1, width + 1)), 1)[:width]
+
+
+def _measure_rows(sums, rows, lo, hi, core_lo=None, core_hi=None, plateau_margin=None):
+    """Sums, midpoints and plateaus of ``rows`` over the windows ``lo ≤ u ≤ hi`` (px).
+
+    ``sums`` is the ROI's :class:`_RowSums`. The plateau is the mean over the core
+    ``core_lo ≤ u ≤ core_hi`` (within the window) when given; with ``plateau_margin``
+    instead, the core is the chord that the window maximum implies, less that margin at
+    each end (the maximum overstates the level, so that chord is short and its core
+    safely inside); with neither, the plateau is the window maximum. Rows with no core
+    pixel keep their maximum and get ``n_core`` 0.
+    """
+    c0, c1 = sums.columns(lo, hi)
+    n_pix = c1 - c0 + 1
+    S = sums.s0[rows, c1 + 1] - sums.s0[rows, c0]
+    M = (sums.s1[rows, c1 + 1] - sums.s1[rows, c0]) / np.where(S != 0.0, S, 1.0)
+    # Σ (u − M)² over the window in closed form (its columns are consecutive integers)
+    sum_c = 0.5 * (c0 + c1) * n_pix
+    sum_c2 = (c1 * (c1 + 1.0) * (2 * c1 + 1) - (c0 - 1.0) * c0 * (2 * c0 - 1)) / 6.0
+    spread2 = sum_c2 - 2.0 * M * sum_c + n_pix * M * M
+    peak = None
+    if core_lo is None:
+        peak = sums.peak(rows, c0, c1)
+        if plateau_margin is not None:
+            half = 0.5 * S / np.where(peak > 0.0, peak, np.inf)
+            core_lo, core_hi = M - half + plateau_margin, M + half - plateau_margin
+    if core_lo is None:
+        P, n_core = peak, np.ones(len(rows), int)
+    else:
+        k0, k1 = sums.columns(np.maximum(core_lo, c0), np.minimum(core_hi, c1))
+        n_core = k1 - k0 + 1
+        P = (sums.s0[rows, k1 + 1] - sums.s0[rows, k0]) / np.maximum(n_core, 1)
+        empty = n_core == 0
+        if empty.any():
+            P[empty] = (peak[empty] if peak is not None
+                        else sums.peak(rows[empty], c0[empty], c1[empty]))
+    clipped = (np.zeros(len(rows), bool) if sums.n_sat is None
+               else sums.n_sat[rows, c1 + 1] - sums.n_sat[rows, c0] > 0.5)
+    return _Rows(rows.astype(float), S, M, spread2, n_pix, P, n_core, clipped)
+
+
+def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, threshold=None):
     """Row-chord ellipse fit of a striped spot (ROI coordinates).
 
     Parameters
     ----------
     roi : (h, w) float, background-subtracted, NOT closed (raw stripes).
-    support : (h, w) bool, the spot's pixels (a generous mask; each row's chord is taken
-        between its first and last support pixel).
+    support : (h, w) bool, the spot's pixels (a generous mask; in the first pass each
+        row's chord is taken between its first and last support pixel).
     noise_sigma : image noise (DN, 1σ).
     config : :class:`ChordConfig`.
     saturated : (h, w) bool, clipped pixels, or None. A clipped row's plateau is
         unknown, so its half-chord is not measured (its midpoint still is: clipping is
         symmetric about it).
+    threshold : the detection threshold above background (DN) that made ``support``, or
+        None. With it the fit runs twice: first on the rows whose own support is
+        bounded by the spot's true edge (see ``ChordConfig.edge_threshold_factor``), then
+        on every row, each measured between the chord ends that first ellipse predicts
+        (widened by ``window_margin_px``) with the mean of its fully covered pixels as
+        its plateau. Without it (or with ``two_pass`` off), one pass over every row's
+        own support.
 
     Returns
     -------
     CentreEstimate with ``conic`` (the fitted ellipse, None when the centre row could not
     come from the chord widths) and ``info`` holding the midpoint line (``a``, ``k``,
-    ``vbar``, ``cov_line``), the centre row's variance ``var_v`` and ``v_from_width``.
+    ``vbar``, ``cov_line``), the width parabola ``quad`` (in v − vbar), the centre row's
+    variance ``var_v``, ``v_from_width`` and ``passes`` (1 or 2).
 
     Notes
     -----
@@ -223,96 +357,162 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None):
     and its sum over its plateau level is 2 w_r. An ellipse gives m(v) = a + k v
     (midpoints of parallel chords lie on a diameter) and w(v)² = α + β v + γ v²
     (γ < 0), the vertex v0 = −β / 2γ being the centre row; u0 = a + k v0.
+
+    Both hold only for complete chords. The rows of a dark stripe still carry the lamp's
+    residual light (a few % of "on"), barely above the detection threshold: their
+    thresholded support is a scatter of pixels, which the detection's closing extends
+    into columns that cover part of the chord. Such a row's window cuts its chord: its
+    half-chord comes out short and its midpoint off-centre. Where one of the spot's tips
+    lies in a dark stripe, several such rows sit on one side of the centre and pull the
+    vertex of the width parabola by up to a row (and u by k times that).
     """
     cfg = config or ChordConfig()
     roi = np.asarray(roi, float)
     h, w = roi.shape
-    cols = np.arange(w, dtype=float)
     has = support.any(axis=1)
     if has.sum() < 3:
         return CentreEstimate()
+    rows = np.nonzero(has)[0]
+    sup = support[rows]
     # One pixel beyond the support on each side: in a dim stripe row the threshold
     # misses the chord's faint ends, which would shorten it.
-    first = np.where(has, support.argmax(axis=1), w) - 1
-    last = np.where(has, w - 1 - support[:, ::-1].argmax(axis=1), -1) + 1
-    inrow = has[:, None] & (cols[None, :] >= first[:, None]) & (cols[None, :] <= last[:, None])
-    p = np.where(inrow, roi, 0.0)
-    n_pix = inrow.sum(axis=1)
-    S = p.sum(axis=1)
-    P = np.where(has, np.where(inrow, roi, -np.inf).max(axis=1), 0.0)
-    lit = has & (S > cfg.min_row_snr * noise_sigma * np.sqrt(np.maximum(n_pix, 1)))
-    rows = np.nonzero(lit)[0]
-    if len(rows) < 3:
+    lo = sup.argmax(axis=1) - 1.0
+    hi = w - sup[:, ::-1].argmax(axis=1).astype(float)
+    sums = _RowSums(roi, saturated)
+    if threshold is None or not cfg.two_pass:
+        return _fit_rows(_measure_rows(sums, rows, lo, hi), noise_sigma, cfg, 1)
+    own = _measure_rows(sums, rows, lo, hi, plateau_margin=cfg.plateau_margin_px)
+    bounded = own.P > cfg.edge_threshold_factor * threshold + 2.0 * noise_sigma
+    sketch = _sketch_ellipse(own.take(bounded), noise_sigma, cfg)
+    if sketch is None:
+        # too few complete rows to draw the ellipse (a small or faint spot): every row
+        return _fit_rows(own, noise_sigma, cfg, passes=1)
+    # second pass: every row of the first ellipse, hidden tip rows included, measured
+    # between that ellipse's chord ends, or the row's own window where wider (a wider
+    # window only adds zero-mean noise, a narrower one would cut the chord)
+    vbar, mid_poly, w2_poly = sketch
+    d = np.arange(h, dtype=float) - vbar
+    w2 = np.polyval(w2_poly, d)
+    inside = np.nonzero(w2 > 0.0)[0]
+    half = np.sqrt(w2[inside])
+    mid = np.polyval(mid_poly, d[inside])
+    own_lo, own_hi = np.full(h, np.inf), np.full(h, -np.inf)
+    own_lo[rows], own_hi[rows] = lo, hi
+    rows2 = _measure_rows(sums, inside,
+                          np.minimum(mid - half - cfg.window_margin_px, own_lo[inside]),
+                          np.maximum(mid + half + cfg.window_margin_px, own_hi[inside]),
+                          mid - half + cfg.plateau_margin_px, mid + half - cfg.plateau_margin_px)
+    second = _fit_rows(rows2, noise_sigma, cfg, passes=2)
+    return second if second.info.get('v_from_width') else _fit_rows(own, noise_sigma, cfg, 1)
+
+
+def _sketch_ellipse(rows, noise_sigma, cfg):
+    """First-pass ellipse through complete rows: ``(vbar, midpoint poly, half-chord² poly)``.
+
+    Unweighted least squares (np.polyval coefficients in v − vbar), enough to place the
+    second pass's windows to a fraction of a pixel; None when the rows draw no ellipse
+    (fewer than four usable rows, no downward curvature, or a vertex outside them).
+    """
+    lit = rows.S > cfg.min_row_snr * noise_sigma * np.sqrt(np.maximum(rows.n_pix, 1))
+    half = 0.5 * rows.S / np.where(rows.P > 0.0, rows.P, np.inf)
+    use = lit & (half >= 0.5 * cfg.min_chord_px)
+    if (use & ~rows.clipped).sum() >= 4:
+        use &= ~rows.clipped
+    if use.sum() < 4:
+        return None
+    v = rows.v[use]
+    vbar = float(v.mean())
+    d = v - vbar
+    # one quadratic design for both (the midpoints' d² term only absorbs noise)
+    A = np.vander(d, 3)
+    coef = np.linalg.solve(A.T @ A, A.T @ np.column_stack([rows.M[use], half[use] ** 2]))
+    mid_poly, w2_poly = coef[:, 0], coef[:, 1]
+    if not w2_poly[0] < 0.0:
+        return None
+    d0 = -w2_poly[1] / (2.0 * w2_poly[0])
+    if not d[0] - 1.0 <= d0 <= d[-1] + 1.0:
+        return None
+    return vbar, mid_poly, w2_poly
+
+
+def _fit_rows(rows, noise_sigma, cfg, passes):
+    """Midpoint line and half-chord² parabola through measured rows (see chord_fit)."""
+    lit = rows.S > cfg.min_row_snr * noise_sigma * np.sqrt(np.maximum(rows.n_pix, 1))
+    n_lit = int(np.count_nonzero(lit))
+    if n_lit < 3:
         return CentreEstimate()
-    clipped = (np.zeros(len(rows), bool) if saturated is None
-               else (saturated & inrow).any(axis=1)[rows])
-    S, P, n_pix = S[rows], P[rows], n_pix[rows]
-    M = (p[rows] * cols).sum(axis=1) / S
-    spread2 = np.where(inrow[rows], (cols[None, :] - M[:, None]) ** 2, 0.0).sum(axis=1)
-    v = rows.astype(float)
-    vbar = v.mean()
-    dv = v - vbar
+    r = rows if n_lit == len(lit) else rows.take(lit)
+    S, P, n_pix, n_core, M = r.S, r.P, r.n_pix, r.n_core, r.M
+    vbar = float(r.v.mean())
+    dv = r.v - vbar
 
     # midpoint line m = a + k (v - vbar): noise variance of each row's first moment
-    var_m = noise_sigma ** 2 * spread2 / S ** 2 + cfg.systematic_px ** 2
-    line, cov_line, res_line = _wls(np.column_stack([np.ones_like(dv), dv]), M, 1.0 / var_m)
+    var_m = noise_sigma ** 2 * r.spread2 / S ** 2 + cfg.systematic_px ** 2
+    line, cov_line, res_line = _wls(dv, M, 1.0 / var_m, 1)
     a, k = line
 
     # half-chord² parabola from rows whose chord holds a fully covered pixel
     half = 0.5 * S / P
-    use = (half >= 0.5 * cfg.min_chord_px) & (P > cfg.min_row_snr * noise_sigma)
-    if use.sum() >= 3:
-        use[np.nonzero(use)[0][[0, -1]]] = False   # outermost rows straddle the tip
-    if (use & ~clipped).sum() >= 4:
-        use &= ~clipped
+    use = ((n_core > 0) & (half >= 0.5 * cfg.min_chord_px)
+           & (P * np.sqrt(n_core) > cfg.min_row_snr * noise_sigma))
+    idx = np.flatnonzero(use)
+    if len(idx) >= 3:
+        idx = idx[1:-1]                            # outermost rows straddle the tip
+    unclipped = idx[~r.clipped[idx]]
+    if len(unclipped) >= 4:
+        idx = unclipped
     v_from_width = False
     quad = None
-    if use.sum() >= 4:
-        y = half[use] ** 2
+    if len(idx) >= 4:
+        h_u, d_u = half[idx], dv[idx]
+        y = h_u * h_u
         # relative error of the half-chord: noise on the sum and on the plateau
-        rel = noise_sigma * np.sqrt(n_pix[use]) / S[use] + noise_sigma / P[use]
-        var_y = ((2.0 * y * rel) ** 2 + (2.0 * half[use] * cfg.systematic_px) ** 2
+        rel = noise_sigma * (np.sqrt(n_pix[idx]) / S[idx]
+                             + 1.0 / (P[idx] * np.sqrt(n_core[idx])))
+        var_y = ((2.0 * y * rel) ** 2 + (2.0 * cfg.systematic_px * h_u) ** 2
                  + (cfg.width_floor_fraction * y.max()) ** 2)
-        A = np.column_stack([np.ones(use.sum()), dv[use], dv[use] ** 2])
-        quad, cov_q, _ = _wls(A, y, 1.0 / var_y)
-        span = dv[use].max() - dv[use].min()
+        quad, cov_q, _ = _wls(d_u, y, 1.0 / var_y, 2)
+        span = d_u[-1] - d_u[0]
         # a width profile with no significant curvature (a Gaussian spot) has no vertex
         if quad[2] < -3.0 * np.sqrt(cov_q[2, 2]) and span > 2.0:
             d0 = -quad[1] / (2.0 * quad[2])
             # the vertex must lie within the rows that carry signal
-            if dv.min() - 1.0 <= d0 <= dv.max() + 1.0:
+            if dv[0] - 1.0 <= d0 <= dv[-1] + 1.0:
                 g = np.array([0.0, -1.0 / (2 * quad[2]), quad[1] / (2 * quad[2] ** 2)])
                 var_d0 = float(g @ cov_q @ g)
                 v_from_width = True
     if not v_from_width:
         # no usable width profile (Gaussian or tiny spot): signal-weighted centre row
-        d0 = float((S * dv).sum() / S.sum())
-        var_d0 = float(noise_sigma ** 2 * np.sum(n_pix * (dv - d0) ** 2) / S.sum() ** 2
-                       + np.sum(S * (dv - d0) ** 2) / S.sum() / len(rows))
-    jac = np.array([1.0, d0])
-    var_u = float(jac @ cov_line @ jac) + k ** 2 * var_d0
+        S_sum = S.sum()
+        d0 = float(S @ dv / S_sum)
+        e2 = (dv - d0) ** 2
+        var_d0 = float(noise_sigma ** 2 * (n_pix @ e2) / S_sum ** 2 + (S @ e2) / S_sum / len(S))
+    var_u = float(cov_line[0, 0] + 2.0 * d0 * cov_line[0, 1] + d0 * d0 * cov_line[1, 1]
+                  + k * k * var_d0)
     conic = _conic_from_chords(a, k, quad, vbar) if v_from_width else None
     return CentreEstimate(float(a + k * d0), float(vbar + d0), float(np.sqrt(var_u)),
                           float(np.sqrt(var_d0)), True, conic,
-                          {'a': float(a), 'k': float(k), 'vbar': float(vbar),
-                           'cov_line': cov_line, 'var_v': var_d0,
-                           'v_from_width': v_from_width, 'line_rms_px': res_line})
+                          {'a': float(a), 'k': float(k), 'vbar': vbar,
+                           'cov_line': cov_line, 'var_v': var_d0, 'quad': quad,
+                           'v_from_width': v_from_width, 'line_rms_px': res_line,
+                           'passes': passes})
 
 
-def _wls(A, y, weights):
-    """Weighted least squares by the normal equations (A has 2–3 columns).
+def _wls(x, y, weights, degree):
+    """Weighted least-squares polynomial ``y ≈ Σ c_j x^j`` (j ≤ degree) by the normal
+    equations.
 
-    Returns the solution, its covariance (scaled by the residual χ² per degree of
-    freedom when that exceeds 1) and the RMS residual.
+    Returns the coefficients (lowest power first), their covariance (scaled by the
+    residual χ² per degree of freedom when that exceeds 1) and the RMS residual.
     """
+    A = np.vander(x, degree + 1, increasing=True)
     Aw = A * weights[:, None]
-    N = Aw.T @ A
-    x = np.linalg.solve(N, Aw.T @ y)
-    r = y - A @ x
-    dof = max(len(y) - A.shape[1], 1)
-    chi2 = float(weights @ (r * r)) / dof
-    cov = np.linalg.inv(N) * max(chi2, 1.0)
-    return x, cov, float(np.sqrt(np.mean(r * r)))
+    N_inv = np.linalg.inv(Aw.T @ A)
+    c = N_inv @ (Aw.T @ y)
+    r = y - A @ c
+    rr = r * r
+    chi2 = float(weights @ rr) / max(len(y) - degree - 1, 1)
+    return c, N_inv * max(chi2, 1.0), float(np.sqrt(rr.mean()))
 
 
 def _conic_from_chords(a, k, quad, vbar):

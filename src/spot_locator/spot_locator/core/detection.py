@@ -22,6 +22,11 @@ class DetectConfig:
     min_area_px: smaller components are noise.
     pad_px: margin of the ROI around the component (px).
     max_spots: at most this many spots (the brightest by area) per image.
+    background_gap_px, background_ring_px: each spot's own background level is measured
+        on a ring of this width (px) that starts this far (px) outside its component,
+        beyond the optics halo and the dark-stripe tips the threshold misses.
+    local_background: False subtracts the frame's background level instead (the method
+        before the local level; for comparison).
     """
 
     threshold_snr: float = 6.0
@@ -30,6 +35,9 @@ class DetectConfig:
     min_area_px: int = 6
     pad_px: int = 3
     max_spots: int = 16
+    background_gap_px: int = 16
+    background_ring_px: int = 8
+    local_background: bool = True
 
 
 @dataclass
@@ -41,8 +49,9 @@ class SpotRegion:
     grown by one pixel (bool). ``row_min``, ``row_max``: image rows covered by the
     component. ``touches_border``: the component reaches the image edge; ``cut_columns``:
     it reaches the left or right edge (its rows are truncated).
-    ``background`` and ``noise_sigma`` (DN) and the ``threshold`` used (DN above
-    background). ``saturated``: ROI pixels at the sensor's full scale (bool).
+    ``background`` (DN): the spot's local background level, subtracted from ``roi``;
+    ``noise_sigma`` (DN) and the ``threshold`` used (DN above the frame's background).
+    ``saturated``: ROI pixels at the sensor's full scale (bool).
     """
 
     u0: int
@@ -76,6 +85,40 @@ def background_and_noise(image, step=8):
         mad = float(np.median(np.abs(sample - med)))
     # an 8-bit dark frame can have MAD 0; quantisation noise is still 1/sqrt(12) DN
     return med, max(1.4826 * mad, 0.29)
+
+
+def local_background(image, box, gap_px, ring_px, frame_background, ceiling):
+    """Background level (DN) around one spot: the mean over a ring outside its box.
+
+    Parameters
+    ----------
+    image : (H, W) the frame.
+    box : (x, y, w, h) the spot's bounding box (px).
+    gap_px, ring_px : the ring spans ``gap_px`` to ``gap_px + ring_px`` outside the box.
+    frame_background : the frame's level (DN), returned when the ring holds too few
+        background pixels.
+    ceiling : ring pixels above it (DN; the detection threshold) belong to another lamp
+        and are left out.
+
+    Notes
+    -----
+    The tunnel's background is not flat (ambient light, dark current), and a spot's
+    width is measured from row sums: an offset of δ DN per pixel changes a row's sum by
+    δ times its window's width, which for the rows of a dark stripe (a few % of the lamp
+    level) is a large fraction of their signal. The mean, not the median: 8-bit levels
+    of a near-black background are integers, and their median is off by up to ½ DN.
+    """
+    x, y, w, h = box
+    H, W = image.shape
+    outer = gap_px + ring_px
+    r0, r1 = max(y - outer, 0), min(y + h + outer, H)
+    c0, c1 = max(x - outer, 0), min(x + w + outer, W)
+    i0, i1 = max(y - gap_px, 0), min(y + h + gap_px, H)
+    j0, j1 = max(x - gap_px, 0), min(x + w + gap_px, W)
+    ring = np.concatenate([image[r0:i0, c0:c1].ravel(), image[i1:r1, c0:c1].ravel(),
+                           image[i0:i1, c0:j0].ravel(), image[i0:i1, j1:c1].ravel()])
+    kept = ring[ring <= ceiling]
+    return float(kept.mean()) if kept.size >= 16 else float(frame_background)
 
 
 def detect_spots(image, config=None):
@@ -118,11 +161,14 @@ def detect_spots(image, config=None):
             continue
         support = cv2.dilate(closed, grow).astype(bool)
         raw = img[v0:v1, u0:u1]
-        roi = raw.astype(np.float32) - bg
+        local_bg = (local_background(img, (x, y, bw, bh), cfg.background_gap_px,
+                                     cfg.background_ring_px, bg, bg + thr)
+                    if cfg.local_background else bg)
+        roi = raw.astype(np.float32) - local_bg
         cut_columns = x == 0 or x + bw == w
         touches = cut_columns or y == 0 or y + bh == h
         out.append(SpotRegion(int(u0), int(v0), roi, support, int(y), int(y + bh - 1),
-                              area, bool(touches), bg, sigma, thr, raw >= full_scale,
+                              area, bool(touches), local_bg, sigma, thr, raw >= full_scale,
                               bool(cut_columns)))
     out.sort(key=lambda spot: -spot.area_px)
     return out[:cfg.max_spots]

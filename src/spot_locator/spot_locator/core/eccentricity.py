@@ -37,7 +37,7 @@ def ellipse_centre_offset(centre_cam, normal_cam, radius_m, fx, fy):
     (..., 2) offsets in pixels.
     """
     C = np.asarray(centre_cam, float)
-    n = np.broadcast_to(np.asarray(normal_cam, float), C.shape)
+    n = np.asarray(normal_cam, float)
     X, Y, Z = C[..., 0], C[..., 1], C[..., 2]
     nz = n[..., 2]
     s2 = 1.0 - nz ** 2
@@ -142,37 +142,56 @@ def angle_deg(a, b):
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-def _chords(Q, rows):
-    """Midpoint and squared half-width of the ellipse ``Q`` (N, 3, 3) on rows (N,)."""
-    a, b, c = Q[:, 0, 0], Q[:, 0, 1], Q[:, 1, 1]
-    d, e, f = Q[:, 0, 2], Q[:, 1, 2], Q[:, 2, 2]
-    m = -(b * rows + d) / a
-    w2 = m * m - (c * rows * rows + 2 * e * rows + f) / a
-    return m, w2
+def _disc_chords(K, P0, V, t, normal, radius_m, rows):
+    """Chord midpoint (px) and squared half-width (px²) of a moving disc on image rows.
 
-
-def _disc_conics(K, centres, normal, radius_m):
-    """Image conics (N, 3, 3) of one disc at N centres (N, 3), optical frame.
-
+    The disc's centre is ``P0 + V t[i]`` (optical frame, m) when row ``rows[i]`` is read.
     A ray X meets the disc plane at λX with λ = (n·C)/(n·X); it grazes the rim when
-    |(n·C) X − (n·X) C|² = R² (n·X)², a quadratic form A in X; the image conic is
-    K⁻ᵀ A K⁻¹ (no matrix inversion per centre).
+    |(n·C) X − (n·X) C|² = R² (n·X)², a quadratic form Xᵀ A X with
+    A = s² I − s (n Cᵀ + C nᵀ) + (|C|² − R²) n nᵀ, s = n·C. With C linear in t every
+    entry of A is a quadratic in t. On row v the normalised ray is X = (x, y, 1),
+    y = (v − cy)/fy, and the chord's ends are the roots in x of
+    A00 x² + 2 (A01 y + A02) x + A11 y² + 2 A12 y + A22 = 0.
     """
-    n = np.asarray(normal, float)
-    C = np.asarray(centres, float)
-    s = C @ n
-    nC = n[None, :, None] * C[:, None, :]
-    A = (s * s)[:, None, None] * np.eye(3) - s[:, None, None] * (nC + nC.transpose(0, 2, 1))
-    A += ((C * C).sum(axis=1) - radius_m ** 2)[:, None, None] * np.outer(n, n)
-    Ki = np.linalg.inv(K)
-    return Ki.T @ A @ Ki
+    n = np.asarray(normal, float).tolist()
+    p = np.asarray(P0, float).tolist()
+    v = np.asarray(V, float).tolist()
+    s0 = n[0] * p[0] + n[1] * p[1] + n[2] * p[2]          # s = s0 + s1 t
+    s1 = n[0] * v[0] + n[1] * v[1] + n[2] * v[2]
+    q0 = p[0] * p[0] + p[1] * p[1] + p[2] * p[2] - radius_m ** 2   # |C|² − R²
+    q1 = 2.0 * (p[0] * v[0] + p[1] * v[1] + p[2] * v[2])
+    q2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+
+    def entry(i, j):
+        """(1, t, t²) coefficients of A_ij."""
+        u0, u1 = n[i] * p[j] + p[i] * n[j], n[i] * v[j] + v[i] * n[j]
+        nn = n[i] * n[j]
+        d = 1.0 if i == j else 0.0
+        return (d * s0 * s0 - s0 * u0 + q0 * nn,
+                2.0 * d * s0 * s1 - s0 * u1 - s1 * u0 + q1 * nn,
+                d * s1 * s1 - s1 * u1 + q2 * nn)
+
+    t = np.asarray(t, float)
+    a00, a01, a02, a11, a12, a22 = np.array(
+        [entry(0, 0), entry(0, 1), entry(0, 2), entry(1, 1), entry(1, 2), entry(2, 2)]
+    ) @ np.vstack([np.ones_like(t), t, t * t])
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    y = (np.asarray(rows, float) - cy) / fy
+    xm = -(a01 * y + a02) / a00
+    w2 = xm * xm - ((a11 * y + 2.0 * a12) * y + a22) / a00
+    return cx + fx * xm, fx * fx * w2
 
 
 def _line_and_parabola(r, m, w2):
     """Least-squares m = a + k r and w2 = g0 + g1 r + g2 r² (r centred by the caller)."""
-    V = np.column_stack([np.ones_like(r), r, r * r])
-    a, k = np.linalg.solve(V[:, :2].T @ V[:, :2], V[:, :2].T @ m)
-    g0, g1, g2 = np.linalg.solve(V.T @ V, V.T @ w2)
+    r2 = r * r
+    n, s1, s2 = float(len(r)), float(r.sum()), float(r2.sum())
+    s3, s4 = float(r2 @ r), float(r2 @ r2)
+    sm, srm = float(m.sum()), float(r @ m)
+    det = n * s2 - s1 * s1
+    a, k = (s2 * sm - s1 * srm) / det, (n * srm - s1 * sm) / det
+    g1, g2 = np.linalg.solve([[n, s1, s2], [s1, s2, s3], [s2, s3, s4]],
+                             [float(w2.sum()), float(r @ w2), float(r2 @ w2)])[1:]
     return a, k, g1, g2
 
 
@@ -189,18 +208,20 @@ def rolling_shutter_offset(P0, velocity, normal, radius_m, K, row_time_s, exposu
     """
     P0 = np.asarray(P0, float)
     V = np.asarray(velocity, float)
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    (x0, y0, z0), (vx, vy, vz) = P0.tolist(), V.tolist()
     v = cy
     for _ in range(5):    # truth row: a contraction (the image moves ≪ 1 row per row)
-        P = P0 + V * (v * row_time_s + 0.5 * exposure_s)
-        v = fy * P[1] / P[2] + cy
-    truth = np.array([fx * P[0] / P[2] + cx, v])
+        t = v * row_time_s + 0.5 * exposure_s
+        x, y, z = x0 + vx * t, y0 + vy * t, z0 + vz * t
+        v = fy * y / z + cy
+    truth = np.array([fx * x / z + cx, v])
     # rows the moving disc may cover: the disc's largest half-height fy·R/Z, with margin
     # for the motion during the readout; rows the ellipse misses drop out below
-    half_h = 1.3 * fy * radius_m / P[2] + 3.0
+    half_h = 1.3 * fy * radius_m / z + 3.0
     rows = np.arange(np.floor(v - half_h), np.ceil(v + half_h) + 1)
     t = rows * row_time_s + 0.5 * exposure_s
-    m, w2 = _chords(_disc_conics(K, P0[None, :] + np.outer(t, V), normal, radius_m), rows)
+    m, w2 = _disc_chords(K, P0, V, t, normal, radius_m, rows)
     inside = w2 > 0.0
     if inside.sum() < 5:
         return np.zeros(2), v

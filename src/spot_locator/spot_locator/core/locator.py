@@ -230,7 +230,8 @@ class SpotLocator:
         noise = region.noise_sigma
         alpha = float('nan')
         if method == 'chord':
-            est = cm.chord_fit(roi, region.support, noise, self.cfg.chord, region.saturated)
+            est = cm.chord_fit(roi, region.support, noise, self.cfg.chord, region.saturated,
+                               region.threshold)
         else:
             closed = cm.close_stripes(np.where(region.support, roi, 0.0),
                                       self.cfg.detect.closing_rows)
