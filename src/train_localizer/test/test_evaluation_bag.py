@@ -65,3 +65,64 @@ def test_distance_to_next_lamp_past_the_last_is_nan():
     d = bag_eval.distance_to_next_lamp(np.array([5.0, 10.0, 25.0]), [10.0, 20.0])
     np.testing.assert_allclose(d[:2], [5.0, 10.0])
     assert np.isnan(d[2])
+
+
+def _diag(t, name, values):
+    kv = [T['diagnostic_msgs/msg/KeyValue'](key=k, value=str(v)) for k, v in values.items()]
+    status = T['diagnostic_msgs/msg/DiagnosticStatus'](level=0, name=name, message='',
+                                                      hardware_id='', values=kv)
+    return T['diagnostic_msgs/msg/DiagnosticArray'](header=_header(t, ''), status=[status])
+
+
+def test_graph_health_processing_and_heading_series(tmp_path, run_bag):
+    epoch = 1704067200.0
+    run = bag_eval.load_run(run_bag)
+    clean = bag_eval.graph_health(run)
+    assert clean['degraded'] is False and clean['camera_lag_max_s'] == 0.0
+    # the run_bag's truth yaws by 3 deg * sin(k/10) and it has no imu/data: no heading
+    assert bag_eval.heading_series(run)['t_s'] == []
+    msgs = [('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray', int((epoch + t) * 1e9), m)
+            for t, m in ((0.1, _diag(epoch + 0.1, 'stereo_camera_node: renderer',
+                                     {'lag_behind_realtime_s': '0.250'})),
+                         (0.2, _diag(epoch + 0.2, 'stereo_camera_node: renderer',
+                                     {'lag_behind_realtime_s': '0.000'})),
+                         (0.3, _diag(epoch + 0.3, 'spot_locator_node: spots',
+                                     {'dropped': '0', 'processing_ms_median': '3.5',
+                                      'processing_ms_max': '12.0'})),
+                         (0.4, _diag(epoch + 0.4, 'vlc_decoder: lamp identification',
+                                     {'decode_ms_median': 'nan', 'decode_ms_max': 'nan'})))]
+    write_bag(tmp_path / 'diag', msgs)
+    run = bag_eval.load_run(tmp_path / 'diag')
+    health = bag_eval.graph_health(run)
+    assert health['camera_lag_max_s'] == 0.25 and health['degraded'] is True
+    proc = bag_eval.processing_times(run)
+    assert proc['spot_locator'] == [3.5, 12.0]
+    assert proc['vlc_decoder'] == [None, None] and proc['train_localizer'] == [None, None]
+
+
+def test_heading_errors_before_and_after():
+    from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw, rpy_to_matrix
+    t = np.linspace(0.0, 2.0, 201)
+    yaw = np.radians(5.0) * np.sin(2 * np.pi * 0.5 * t)          # the platform's sway
+    truth_q = np.array([matrix_to_quat_xyzw(rpy_to_matrix(0, 0, y)) for y in yaw])
+    est_q = np.array([matrix_to_quat_xyzw(rpy_to_matrix(0, 0, y + np.radians(0.1)))
+                      for y in yaw])
+    run = bag_eval.RunData(t, np.zeros((t.size, 3)), truth_q, np.zeros(0), np.zeros((0, 3)),
+                           imu_t=t, imu_quat=est_q)
+    _, after, before = bag_eval.heading_errors(run)
+    np.testing.assert_allclose(after, 0.1, atol=1e-9)
+    np.testing.assert_allclose(before, np.degrees(yaw), atol=1e-9)
+    series = bag_eval.heading_series(run, rate_hz=10.0)
+    assert len(series['t_s']) == 20 and series['t_s'][0] == 0.0
+    np.testing.assert_allclose(series['after_deg'], 0.1, atol=1e-4)
+    scores = bag_eval.score_run(run, [10.0], settle_s=1.0)
+    assert scores['heading_after_deg']['max_abs'] == pytest.approx(0.1, abs=1e-9)
+    # after the 1 s settle only the negative half of the sway is left
+    assert scores['heading_before_deg']['min'] == pytest.approx(-5.0, abs=0.01)
+    assert scores['heading_before_deg']['max'] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_severity_of_a_degraded_run():
+    assert not bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'compensator_gaps': 1})
+    assert bag_eval.severely_degraded({'camera_lag_max_s': 0.3})
+    assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'spot_frames_dropped': 6})

@@ -5,21 +5,24 @@ Examples::
     run_evaluation --protocol demo                 # make demo: a short default scenario
     run_evaluation --protocol full --out out/eval  # 20 points x 10 trials, 6 speeds x 10 runs
     run_evaluation --protocol dynamic --speeds 100 120 --runs 2
+    run_evaluation --protocol full --lanes 2 --rescore --out out/eval   # score again
 """
 import argparse
 import logging
+import os
 import pathlib
 import sys
 import time
 
 from vlc_stereo_camera.core.lamp_map import LampMap, default_lamp_map_path
 
-from . import report, scenarios
+from . import ablations, report, scenarios
+from .graph_runner import SPAWN_MODES
 
 
-def _progress(done, total, name, started=[None]):  # noqa: B006 - start time memo
-    started[0] = started[0] or time.monotonic()
-    elapsed = time.monotonic() - started[0]
+def _progress(done, total, name, started):
+    """A one-line progress bar on stderr (``started``: time.monotonic() at the start)."""
+    elapsed = time.monotonic() - started
     width = 30
     filled = int(width * done / total)
     eta = elapsed / done * (total - done)
@@ -41,13 +44,15 @@ def build_scenarios(args):
     if args.protocol in ('dynamic', 'full'):
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=tuple(args.speeds), runs=args.runs,
                                               cells=args.cells)
+    for scenario in static + dynamic:
+        scenario.realtime_factor = args.realtime_factor
     return static, dynamic
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--protocol', choices=['demo', 'static', 'dynamic', 'full'],
-                        default='demo')
+    parser.add_argument('--protocol', choices=['demo', 'static', 'dynamic', 'full', 'none'],
+                        default='demo', help='none: only --replay-bag and --ablations')
     parser.add_argument('--out', default='out/evaluation', help='bags, logs and report')
     parser.add_argument('--trials', type=int, default=10, help='static trials per point')
     parser.add_argument('--observe-s', type=float, default=3.0,
@@ -56,6 +61,26 @@ def main(argv=None):
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
     parser.add_argument('--cells', type=int, default=6, help='dynamic: lamp cells per run')
     parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
+    parser.add_argument('--lanes', type=int, default=2,
+                        help='scenarios run in parallel, each on a DDS domain of its own')
+    parser.add_argument('--spawn', choices=SPAWN_MODES, default='fork',
+                        help='fork: nodes forked from a preloaded fork server; exec: each '
+                             'node a new interpreter (as ros2 run)')
+    parser.add_argument('--realtime-factor', type=float, default=1.0,
+                        help='simulated seconds per wall second of every scenario (the '
+                             'highest: a lane slows down while nodes fall behind)')
+    parser.add_argument('--retries', type=int, default=1,
+                        help='runs again, slower, a scenario in which a node fell behind')
+    parser.add_argument('--replay-bag', action='append', default=[],
+                        help='also replay this sensor bag (e.g. bags/sample_80kmh) through the '
+                             'processing nodes with bag_player and score it (repeatable)')
+    parser.add_argument('--ablations', action='store_true',
+                        help='also run the reduced static + dynamic set once per ablation '
+                             'variant (evaluation/ablations.py) and add their table')
+    parser.add_argument('--ablation-trials', type=int, default=2,
+                        help='ablations: static trials per point')
+    parser.add_argument('--ablation-runs', type=int, default=2,
+                        help='ablations: dynamic runs per speed')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -65,27 +90,51 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
-    lamps_x = lamp_map.positions[:, 0]
     static, dynamic = build_scenarios(args)
-    total = static + dynamic
-    done = [0]
+    groups = {'static': static, 'dynamic': dynamic}
+    if args.replay_bag:
+        groups['replay'] = [scenarios.replay_scenario(bag, args.realtime_factor)
+                            for bag in args.replay_bag]
+    if args.ablations:
+        groups.update(ablations.ablation_groups(
+            trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
+            realtime_factor=args.realtime_factor))
+    total = sum(len(g) for g in groups.values())
+    started = time.monotonic()
 
-    def progress(_, __, name):
-        done[0] += 1
-        _progress(done[0], len(total), name)
+    def progress(done, _, name):
+        _progress(done, total, name, started)
 
-    static_results = scenarios.run_protocol(static, out / 'static', lamps_x, progress,
-                                            rescore=args.rescore)
-    dynamic_results = scenarios.run_protocol(dynamic, out / 'dynamic', lamps_x, progress,
-                                             rescore=args.rescore)
+    try:
+        results = scenarios.run_protocols(groups, out, lamp_map, lanes=args.lanes,
+                                          spawn=args.spawn, progress=progress,
+                                          rescore=args.rescore, retries=args.retries)
+    except KeyboardInterrupt:
+        print('\ninterrupted: the running scenarios were stopped', file=sys.stderr)
+        sys.stderr.flush()
+        sys.stdout.flush()
+        # Every node is stopped; skip the interpreter's teardown, in which rclpy's
+        # C++ signal-handler thread aborts after an interrupt.
+        os._exit(130)
+    static_results, dynamic_results = results['static'], results['dynamic']
+    ablation = None
+    if args.ablations:
+        table, figures = ablations.ablation_table(results)
+        ablations.plot_ablations(figures, out / 'ablations.png')
+        ablation = (table, figures)
     text = report.write_report(static_results, dynamic_results, out,
-                               title=f'Accuracy ({args.protocol} protocol)')
+                               title=(f'Accuracy ({args.protocol} protocol)'
+                                      if args.protocol != 'none' else 'Evaluation'),
+                               ablations=ablation, replays=results.get('replay'))
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
     if args.readme:
         command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
         report.update_markdown(pathlib.Path(args.readme), out, command)
         print(f'{args.readme}: evaluation section rewritten')
+    wall = time.monotonic() - started
+    how = 'rescored' if args.rescore else f'on {args.lanes} lane(s)'
+    print(f'{total} scenarios {how}: total wall time {wall:.0f} s ({wall / 60:.1f} min)')
     return 0
 
 
