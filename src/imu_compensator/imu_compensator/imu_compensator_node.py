@@ -2,7 +2,7 @@
 
 Subscriptions
 -------------
-``imu/data_raw`` (sensor_msgs/Imu, ``qos_profile_sensor_data``)
+``imu/data_raw`` (sensor_msgs/Imu, best effort, depth 100: ``IMU_QOS``)
     Angular rate (rad/s) and specific force (m/s², +9.81 on z at rest) in
     ``imu_frame_id``, ENU; orientation ignored.
 ``heading_aiding`` (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10)
@@ -40,7 +40,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
 from imu_compensator.conversions import fill_imu_data, imu_sample, pose_heading
@@ -57,6 +57,11 @@ EXIT_INVALID_CONFIG = 2
 
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _STRING = ParameterType.PARAMETER_STRING
+
+# Sensor-data QoS (best effort) with a deep queue: at 400 Hz a 5-sample queue loses
+# samples whenever the process stalls for 12 ms (measured under load).
+IMU_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
+                     history=HistoryPolicy.KEEP_LAST)
 
 
 _F = AttitudeFilterConfig()
@@ -241,7 +246,7 @@ class ImuCompensatorNode(Node):
 
         self._pub = self.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, qos_profile_sensor_data)
+        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
         self.create_subscription(PoseWithCovarianceStamped, 'heading_aiding',
                                  self._on_heading_aiding, 10)
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics)
