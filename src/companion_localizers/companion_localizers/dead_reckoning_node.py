@@ -13,16 +13,13 @@ Parameters: ``config/dead_reckoning_node.yaml``.
 """
 import sys
 
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 
 from vlc_stereo_camera.parameters import descriptor as _desc
 
+from .node_main import run_node
 from .core.dead_reckoning import DeadReckoning, DeadReckoningConfig, ImageStillConfig
 from .frame_node import ImuFrameNode, common_config_kwargs
 
-EXIT_INVALID_CONFIG = 2
 
 
 class DeadReckoningNode(ImuFrameNode):
@@ -72,21 +69,7 @@ class DeadReckoningNode(ImuFrameNode):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = DeadReckoningNode()
-    except (ValueError, OSError, ParameterException) as exc:
-        rclpy.logging.get_logger('dead_reckoning_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(DeadReckoningNode, 'dead_reckoning_node', args)
 
 
 if __name__ == '__main__':

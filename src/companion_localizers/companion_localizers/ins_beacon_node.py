@@ -14,17 +14,14 @@ logged (throttled). Parameters: ``config/ins_beacon_node.yaml``.
 """
 import sys
 
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 
 from vlc_stereo_camera.parameters import descriptor as _desc
 
+from .node_main import run_node
 from .core.beacon_sequence import BeaconSequenceConfig
 from .core.ins_beacon import InsBeacon, InsBeaconConfig
 from .frame_node import WARN, ImuFrameNode, common_config_kwargs
 
-EXIT_INVALID_CONFIG = 2
 
 
 class InsBeaconNode(ImuFrameNode):
@@ -100,21 +97,7 @@ class InsBeaconNode(ImuFrameNode):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = InsBeaconNode()
-    except (ValueError, OSError, ParameterException) as exc:
-        rclpy.logging.get_logger('ins_beacon_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(InsBeaconNode, 'ins_beacon_node', args)
 
 
 if __name__ == '__main__':

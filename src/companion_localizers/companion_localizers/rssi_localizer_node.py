@@ -32,10 +32,7 @@ import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu, PointCloud2
@@ -48,11 +45,11 @@ from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.parameters import descriptor as _desc
 from vlc_stereo_camera.photodiode_node import declare_channel_parameters, photodiode_config
 
+from .node_main import run_node
 from . import conversions
 from .core.attitude_prior import fuse_tilt
 from .core.rssi import SOLVE_MODES, RssiConfig, trilaterate
 
-EXIT_INVALID_CONFIG = 2
 NS_PER_S = 1_000_000_000
 #: Level values of diagnostic_msgs/DiagnosticStatus.
 OK, WARN = 0, 1
@@ -288,21 +285,7 @@ class RssiLocalizerNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = RssiLocalizerNode()
-    except (ValueError, OSError, ParameterException) as exc:
-        rclpy.logging.get_logger('rssi_localizer_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(RssiLocalizerNode, 'rssi_localizer_node', args)
 
 
 if __name__ == '__main__':
