@@ -251,6 +251,7 @@ class CurvatureNode(Node):
                   'gyro_bias_learnt': core.array.bias_learnt,
                   'gyro_bias_rps': f'{core.array.bias_rps:.3e}'}
         if not core.template.has_curvature:
+            values['status'] = 'no_curvature_on_alignment'
             return (WARN, 'no curvature on this alignment: cannot localise',
                     values)
         if self._imu_count == 0 or self._speed_count == 0:

@@ -116,6 +116,7 @@ def test_straight_line_says_it_cannot_localise_and_publishes_nothing(make_node):
     node._publish_diagnostics()
     status, values = _values(node.diags[-1])
     assert status.level == b'\x01' and 'cannot localise' in status.message
+    assert values['status'] == 'no_curvature_on_alignment'
     # The curved line's template, a straight stretch of it: no curvature signal.
     node = make_node(alignment='curved_demo')
     feed(node, Alignment.straight(), 0.0, 900.0, 20.0)

@@ -18,7 +18,8 @@ from rosbags.rosbag2 import Reader
 
 from train_localizer.bagtools import (SplitBagWriter, bag_summary, iter_raw, jazzy_typestore,
                                       open_bag, qos_profile, read_receive_times, write_bag)
-from train_localizer.bagtools.playback import (PlaybackSchedule, PlayerConfig, missing_topics,
+from train_localizer.bagtools.playback import (PlaybackSchedule, PlayerConfig, delayed,
+                                               missing_topics,
                                                parse_remaps, playback_qos, select_topics,
                                                time_window)
 from train_localizer.bagtools.recording import (RecorderConfig, RecordingSession,
@@ -349,6 +350,23 @@ def test_playback_qos_from_recorded_offers():
     assert playback_qos([qos_profile('reliable', 'transient_local', 1)], False, 5).durability \
         == QosDurability.TRANSIENT_LOCAL
     assert playback_qos([], False, 7).reliability == QosReliability.RELIABLE
+
+
+def test_delayed_topics_are_released_in_time_order():
+    ms = 1_000_000
+    # images stamped at exposure start every 33 ms, IMU every 2.5 ms
+    messages = sorted([('/imu', None, k * 2.5 * ms, b'i') for k in range(40)]
+                      + [('/img', None, k * 33 * ms, b'f') for k in range(3)],
+                      key=lambda m: m[2])
+    out = list(delayed(iter(messages), ['img'], 21.6 * ms))
+    assert sorted(out, key=lambda m: m[2]) == out          # time order kept
+    frames = [m[2] for m in out if m[0] == '/img']
+    assert frames == pytest.approx([21.6 * ms, 54.6 * ms, 87.6 * ms])
+    assert [m[2] for m in out if m[0] == '/imu'] == [m[2] for m in messages if m[0] == '/imu']
+    # the first frame comes after the IMU samples of its readout, before later ones
+    first = [m[0] for m in out].index('/img')
+    assert out[first - 1][2] <= 21.6 * ms < out[first + 1][2]
+    assert list(delayed(iter(messages), ['/img'], 0)) == messages
 
 
 def test_time_window_and_schedule():

@@ -4,6 +4,7 @@ remapping, publisher QoS from the recorded offers, and the wall-clock schedule.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import heapq
 from typing import Iterable, Sequence
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosReliability
@@ -28,13 +29,16 @@ class PlayerConfig:
     wait_for_subscriptions: bool = False
     default_depth: int = 5
     fast_pause_s: float = 0.001
+    delay_topics: tuple[str, ...] = ()
+    topic_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.bag:
             raise ValueError('parameter bag (path of the bag folder) is required')
         if not self.rate >= 0:
             raise ValueError('rate must be >= 0 (0 = as fast as subscribers keep up)')
-        for name in ('start_offset_s', 'duration_s', 'start_delay_s', 'fast_pause_s'):
+        for name in ('start_offset_s', 'duration_s', 'start_delay_s', 'fast_pause_s',
+                     'topic_delay_s'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must be >= 0')
         if self.default_depth < 1:
@@ -133,3 +137,30 @@ class PlaybackSchedule:
         if self.rate == 0 or self._bag_t0_ns is None:
             return None
         return self._wall_t0_s + (timestamp_ns - self._bag_t0_ns) * 1e-9 / self.rate
+
+
+def delayed(messages: Iterable[tuple], delay_topics: Iterable[str], delay_ns: int):
+    """Yield ``(topic, connection, timestamp, data)`` with the messages of ``delay_topics``
+    moved ``delay_ns`` later, in the order of the new timestamps (``delay_ns`` >= 0).
+
+    A rolling-shutter camera's image carries the stamp of its first row's exposure but
+    exists only once the last row is read out; a bag whose timestamps are header stamps
+    (the sample and latency bags) would otherwise replay each frame a readout early,
+    before the IMU samples the camera saw. Messages of other topics keep their order.
+    """
+    delay_topics = {absolute(t) for t in delay_topics}
+    if not delay_topics or delay_ns <= 0:
+        yield from messages
+        return
+    held = []                   # heap of (new timestamp, sequence, message)
+    for seq, (topic, conn, timestamp, data) in enumerate(messages):
+        # every later message is due at or after ``timestamp``: release what is due before
+        while held and held[0][0] <= timestamp:
+            yield heapq.heappop(held)[2]
+        if topic in delay_topics:
+            heapq.heappush(held, (timestamp + delay_ns, seq,
+                                  (topic, conn, timestamp + delay_ns, data)))
+        else:
+            yield topic, conn, timestamp, data
+    while held:
+        yield heapq.heappop(held)[2]

@@ -38,7 +38,7 @@ from rosgraph_msgs.msg import Clock
 from .bagio import bag_summary, bag_time_range, iter_raw
 from .conversions import message_class, qos_to_rclpy
 from .params import declare
-from .playback import (PlaybackSchedule, PlayerConfig, missing_topics, parse_remaps,
+from .playback import (PlaybackSchedule, PlayerConfig, delayed, missing_topics, parse_remaps,
                        playback_qos, select_topics, time_window)
 
 
@@ -114,6 +114,11 @@ class BagPlayerNode(Node):
             fast_pause_s=declare(self, 'fast_pause_s', d['fast_pause_s'].default,
                                  'Rate 0: pause after each message [s]',
                                  float_range=(0.0, 1.0)),
+            delay_topics=declare(self, 'delay_topics', Parameter.Type.STRING_ARRAY,
+                                 'Topics published topic_delay_s after their bag timestamp'),
+            topic_delay_s=declare(self, 'topic_delay_s', d['topic_delay_s'].default,
+                                  'Delay of delay_topics (e.g. a rolling-shutter readout) [s]',
+                                  float_range=(0.0, 10.0)),
         )
 
     def _play(self) -> None:
@@ -148,7 +153,8 @@ class BagPlayerNode(Node):
         start, stop = self._window
         schedule.restart(start, time.monotonic())
         last_clock = -1
-        messages = iter_raw(cfg.bag, list(self._topic_publishers), start, stop)
+        messages = delayed(iter_raw(cfg.bag, list(self._topic_publishers), start, stop),
+                           cfg.delay_topics, round(cfg.topic_delay_s * 1e9))
         for topic, _, timestamp, data in messages:
             due = schedule.due_s(timestamp)
             if due is not None and self._stop.wait(max(0.0, due - time.monotonic())):

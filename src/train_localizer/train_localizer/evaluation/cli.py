@@ -6,6 +6,8 @@ Examples::
     run_evaluation --protocol full --out out/eval  # 20 points x 10 trials, 6 speeds x 10 runs
     run_evaluation --protocol dynamic --speeds 100 120 --runs 2
     run_evaluation --protocol full --lanes 2 --rescore --out out/eval   # score again
+    run_evaluation --protocol companions --lanes 1 --out out/companions   # issue 7
+    run_evaluation --protocol none --forged --out out/forged
 """
 import argparse
 import logging
@@ -16,7 +18,7 @@ import time
 
 from vlc_stereo_camera.core.lamp_map import LampMap, default_lamp_map_path
 
-from . import ablations, report, scenarios
+from . import ablations, companions, report, scenarios
 from .graph_runner import SPAWN_MODES
 
 
@@ -51,8 +53,10 @@ def build_scenarios(args):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--protocol', choices=['demo', 'static', 'dynamic', 'full', 'none'],
-                        default='demo', help='none: only --replay-bag and --ablations')
+    parser.add_argument('--protocol',
+                        choices=['demo', 'static', 'dynamic', 'full', 'companions', 'none'],
+                        default='demo', help='none: only what the options below add; '
+                        'companions: --companions --outage --forged')
     parser.add_argument('--out', default='out/evaluation', help='bags, logs and report')
     parser.add_argument('--trials', type=int, default=10, help='static trials per point')
     parser.add_argument('--observe-s', type=float, default=3.0,
@@ -81,6 +85,29 @@ def main(argv=None):
                         help='ablations: static trials per point')
     parser.add_argument('--ablation-runs', type=int, default=2,
                         help='ablations: dynamic runs per speed')
+    parser.add_argument('--companions', action='store_true',
+                        help='also run every positioning method (companion nodes and the '
+                             'photodiode beside the graph) on static and dynamic scenarios, '
+                             'straight and curved, and add their table (evaluation/companions.py)')
+    parser.add_argument('--companion-speeds', type=int, nargs='+',
+                        default=list(companions.SPEEDS_KMH), help='companions: straight speeds')
+    parser.add_argument('--companion-points', type=float, nargs='+',
+                        default=list(companions.STATIC_POINTS_M),
+                        help='companions: static points (m before the lamp; the first two '
+                             'also on the curve)')
+    parser.add_argument('--companion-curved-s', type=float, default=companions.CURVED_DURATION_S,
+                        help='companions: simulated seconds of the curved dynamic run (0: no '
+                             'curved scenarios)')
+    parser.add_argument('--outage', action='store_true',
+                        help='also run the lamp-outage scenario (every second lamp dark for '
+                             '200 m, then none for 500 m) and add its table')
+    parser.add_argument('--outage-speed', type=float, default=companions.OUTAGE_SPEED_KMH)
+    parser.add_argument('--forged', action='store_true',
+                        help='also run the forged-lamp pair (clean, forged) and add its table')
+    parser.add_argument('--forged-speed', type=float, default=companions.FORGED_SPEED_KMH)
+    parser.add_argument('--companions-docs', nargs='+', default=[],
+                        help='also write the companion, outage and forged-lamp tables between '
+                             'the companions markers of these Markdown files')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -95,6 +122,22 @@ def main(argv=None):
     if args.replay_bag:
         groups['replay'] = [scenarios.replay_scenario(bag, args.realtime_factor)
                             for bag in args.replay_bag]
+    if args.protocol == 'companions':
+        args.companions = args.outage = args.forged = True
+    kinds = {}
+    if args.companions:
+        kinds['companions'] = companions.companion_scenarios(
+            points_m=tuple(args.companion_points), speeds_kmh=tuple(args.companion_speeds),
+            observe_s=args.observe_s, curved_duration_s=args.companion_curved_s,
+            curved=args.companion_curved_s > 0)
+    if args.outage:
+        kinds['outage'] = [companions.outage_scenario(out / 'outage', args.outage_speed)]
+    if args.forged:
+        kinds['forged'] = companions.forged_scenarios(out / 'forged', args.forged_speed)
+    for group in kinds.values():
+        for scenario in group:
+            scenario.realtime_factor = args.realtime_factor
+    groups.update(kinds)
     if args.ablations:
         groups.update(ablations.ablation_groups(
             trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
@@ -124,8 +167,17 @@ def main(argv=None):
         ablation = (table, figures)
     text = report.write_report(static_results, dynamic_results, out,
                                title=(f'Accuracy ({args.protocol} protocol)'
-                                      if args.protocol != 'none' else 'Evaluation'),
+                                      if args.protocol not in ('none', 'companions')
+                                      else 'Evaluation'),
                                ablations=ablation, replays=results.get('replay'))
+    if kinds:
+        added = companions.append_to_report(out, results.get('companions', ()),
+                                            results.get('outage', ()), results.get('forged', ()))
+        text += added
+        command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
+        for path in args.companions_docs:
+            companions.update_docs(path, added, command)
+            print(f'{path}: companions section rewritten')
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
     if args.readme:

@@ -421,9 +421,15 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
                   'distance to the lamp:', '', by_dist]
     live = list(static_results) + list(dynamic_results)
     if live:
-        # not replays: bag_player publishes a frame at its stamp, a camera after readout
         table, figures['latency'] = latency_table(live)
         parts += ['', '### Latency', '', table]
+    if replays:
+        # The on-train case: sensors arrive from a player (frames a readout after their
+        # stamp, as from the camera), the cores run only the processing nodes and the
+        # recorder, not the rig's renderer.
+        table, figures['latency_replay'] = latency_table(replays)
+        parts += ['', '### Latency, sensor bags replayed through the processing nodes', '',
+                  table]
     if everything:
         text, figures['health'] = health_summary(everything)
         parts += ['', text]

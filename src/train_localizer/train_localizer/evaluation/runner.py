@@ -31,8 +31,10 @@ import time
 
 import yaml
 
-from ..bagtools.bagio import open_bag
+from ..bagtools.bagio import iter_raw, open_bag
+from ..bagtools.typesupport import header_stamp_ns
 from .graph_runner import ForkSpawner, GraphRun, read_cpu_seconds, workspace_install
+from .latency import READOUT_S
 
 LOG = logging.getLogger(__name__)
 
@@ -45,6 +47,10 @@ RIG_NODES = [('vlc_stereo_camera', 'adis16488_node'),
 RECORDER = ('train_localizer', 'bag_recorder')
 PLAYER = ('train_localizer', 'bag_player')
 EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYER]]
+# Extra processing nodes a scenario may add (Scenario.extra_nodes: the companion methods
+# of issue 7 and the rig's photodiode), preloaded in the fork server too.
+EXTRA_EXECUTABLES = ['photodiode_node', 'rssi_localizer_node', 'dead_reckoning_node',
+                     'ins_beacon_node', 'curvature_node']
 # What a replay plays from a sensor bag (the processing nodes' inputs and the truth)
 REPLAYED_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
                    '/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data_raw',
@@ -115,6 +121,20 @@ class Lane:
         self.domain_id = 120 + (self.domain_id - 120 + 37) % 113
 
 
+# Images (and their camera_info) exist only once the camera has read out the last row
+# (latency.READOUT_S after the first row's exposure start).
+FRAME_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
+                '/stereo/left/camera_info', '/stereo/right/camera_info')
+
+
+def header_stamped(bag, topic='/stereo/left/image_raw'):
+    """True when the bag's timestamps of ``topic`` are its header stamps (a sensor bag
+    of the rig recorded with ``timestamp_source: header``), False for receive times."""
+    for _, _, timestamp, data in iter_raw(bag, [topic]):
+        return header_stamp_ns(data) == timestamp
+    return False
+
+
 def bag_end_ns(bag, topic='/ground_truth/pose'):
     """Header stamp of the last ``topic`` message of a bag, ns (0 if none)."""
     last = 0
@@ -182,7 +202,12 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
             graph.start(package, exe, scenario.node_params.get(exe, {}),
                         [graph.config_file(package, f'{exe}.yaml')])
+        for package, exe, files in scenario.extra_nodes:
+            graph.start(package, exe, scenario.node_params.get(exe, {}),
+                        [graph.config_file(package, name) for name in files])
         required = required_subscriptions(recorded_topics, scenario.run_processing)
+        for topic, count in scenario.extra_subscriptions.items():
+            required[topic] = required.get(topic, 0) + count
         if replay:
             # the player's /clock and ground truth come from the bag, not from a rig
             required = {t: n for t, n in required.items()
@@ -205,9 +230,14 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
             lane.move_domain()
         if replay:
             end_ns = bag_end_ns(scenario.replay_bag)
+            # A header-stamped bag would hand each frame over a readout before the
+            # camera could have sent it: the player delays the frames by the readout.
+            delay = READOUT_S if header_stamped(scenario.replay_bag) else 0.0
             graph.start(*PLAYER, {'bag': str(scenario.replay_bag),
                                   'rate': float(scenario.realtime_factor),
                                   'topics': list(REPLAYED_TOPICS),
+                                  'delay_topics': list(FRAME_TOPICS),
+                                  'topic_delay_s': delay,
                                   'wait_for_subscriptions': True},
                         [graph.config_file(PLAYER[0], 'bag_player.yaml')])
             mark('sim_started')
@@ -270,7 +300,7 @@ def run_jobs(jobs, lanes=2, spawn='fork', on_done=None):
     come first (the caller orders them). ``on_done(index, result)`` is called as each
     job finishes (from the lane's thread, serialised). Returns the results in job order.
     """
-    spawner = ForkSpawner(EXECUTABLES) if spawn == 'fork' else None
+    spawner = ForkSpawner(EXECUTABLES + EXTRA_EXECUTABLES) if spawn == 'fork' else None
     todo = queue.Queue()
     for i, job in enumerate(jobs):
         todo.put((i, job))

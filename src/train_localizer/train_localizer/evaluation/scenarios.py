@@ -52,6 +52,12 @@ class Scenario:
     ``{'train_localizer_node': {'use_kalman': False}}``; also ``bag_recorder``).
     ``run_processing`` False runs only the rig and the recorder (a sensor bag);
     ``replay_bag`` replaces the rig by ``bag_player`` playing that sensor bag.
+    ``extra_nodes``: ``[[package, executable, [parameter files in its share/config]]]``
+    started beside the processing nodes (the companion methods, :mod:`.companions`),
+    with ``node_params[executable]``; ``extra_subscriptions`` (``{topic: count}``) are
+    theirs, awaited before simulated time starts; ``extra_topics`` are recorded too.
+    ``kind`` (``companions``, ``outage``, ``forged``; '' = the paper's protocols) selects
+    the scoring, ``kind_params`` its geometry (:mod:`.companions`).
     """
 
     name: str
@@ -67,6 +73,11 @@ class Scenario:
     replay_bag: str = ''
     node_params: dict = field(default_factory=dict)
     static_point_m: float = float('nan')
+    extra_nodes: list = field(default_factory=list)
+    extra_subscriptions: dict = field(default_factory=dict)
+    extra_topics: list = field(default_factory=list)
+    kind: str = ''
+    kind_params: dict = field(default_factory=dict)
 
     @property
     def is_replay(self):
@@ -81,11 +92,12 @@ class Scenario:
             return list(dict.fromkeys(SENSOR_TOPICS + GROUND_TRUTH_TOPICS))
         topics = list(RECORDED_TOPICS)
         if self.is_replay:
-            topics.append('/ground_truth/spots')
+            topics += ['/ground_truth/spots', '/imu/data_raw']
         elif not self.is_static:
             topics += DYNAMIC_TOPICS
         if self.record_sensors:
             topics += SENSOR_TOPICS
+        topics += self.extra_topics
         return list(dict.fromkeys(topics))
 
 
@@ -176,7 +188,9 @@ def score_replay(run, scenario, lamp_map):
     """A replayed sensor bag: every pose from the localizer's first one on (there are no
     protocol test points in a short pass), the lamps identified, graph health."""
     out = {'bag': scenario.replay_bag, 'poses': int(run.pose_t.size),
-           'health': bag_eval.graph_health(run),
+           'realtime_factor': scenario.realtime_factor,
+           'health': bag_eval.graph_health(run), 'latency_ms': _latency_samples(run),
+           'processing_ms': bag_eval.processing_times(run),
            'identification': identification.identification(run)}
     if run.pose_t.size and run.truth_t.size:
         out['first_pose_s'] = float(run.pose_t[0] - run.truth_t[0])
@@ -189,9 +203,13 @@ def score_replay(run, scenario, lamp_map):
 
 
 def score_scenario(bag, scenario, lamp_map):
-    """Score one recorded scenario bag (static or dynamic protocol)."""
+    """Score one recorded scenario bag (static or dynamic protocol, or a
+    :mod:`.companions` kind)."""
     run = bag_eval.load_run(bag)
-    if scenario.is_replay:
+    if scenario.kind:
+        from . import companions
+        result = companions.score_kind(run, scenario)
+    elif scenario.is_replay:
         result = score_replay(run, scenario, lamp_map)
     elif scenario.is_static:
         result = score_static(run, scenario, lamp_map)
