@@ -109,9 +109,10 @@ def test_chord_fit_is_not_pulled_by_a_tip_hidden_in_a_dark_stripe(tip):
     assert rms['old'][0] > 2.0 * rms['new'][0] and rms['old'][1] > 2.0 * rms['new'][1], rms
 
 
-def test_each_spot_is_measured_against_its_own_background_level():
+def test_each_spot_is_measured_against_its_own_background_plane():
     """The tunnel background is not flat: the frame's median is 2 DN off at this spot,
-    which is a tenth of a dim row's signal; the ring around the spot gives its level."""
+    which is a tenth of a dim row's signal; the ring around the spot gives its level and
+    its gradient, and the plane is what the ROI has removed."""
     shape = (240, 200)
     vv, uu = np.indices(shape)
     ramp = 5.0 * (vv / shape[0] + uu / shape[1])
@@ -119,18 +120,90 @@ def test_each_spot_is_measured_against_its_own_background_level():
         rng = np.random.default_rng(seed)
         img, c = _hidden_tip_spot(rng, 'top', shape, centre=(60.0, 70.0))
         noisy = synth.add_noise(img + ramp, rng, read_noise=1.5, background=4.0)
-        truth = 4.0 + 5.0 * (c[1] / shape[0] + c[0] / shape[1])
         region = detect_spots(noisy)[0]
+        flat = detect_spots(noisy, DetectConfig(background_plane=False))[0]
         frame = detect_spots(noisy, DetectConfig(local_background=False))[0]
+        # the plane's level is given at the centre of the spot's box
+        box_c = (region.u0 + 3 + 0.5 * (region.support.shape[1] - 7),
+                 region.row_min + 0.5 * (region.row_max - region.row_min))
+        truth = 4.0 + 5.0 * (box_c[1] / shape[0] + box_c[0] / shape[1])
         assert abs(region.background - truth) < 0.2, (region.background, truth)
         assert abs(frame.background - truth) > 1.5
-        np.testing.assert_allclose(region.roi - frame.roi, frame.background
-                                   - region.background, atol=1e-4)
+        np.testing.assert_allclose(region.background_slope, (5.0 / shape[1], 5.0 / shape[0]),
+                                   atol=0.004)
+        assert flat.background_slope == (0.0, 0.0)
+        # what the ROI had subtracted, pixel by pixel: the plane
+        removed = frame.roi - region.roi + frame.background
+        expected = ramp[region.v0:region.v0 + region.roi.shape[0],
+                        region.u0:region.u0 + region.roi.shape[1]] + 4.0
+        assert np.abs(removed - expected).max() < 0.3
     # another lamp in the ring is left out, the ring cut by the image edge still works
     img = np.full((100, 100), 3.0)
     img[0:10, 40:60] = 250.0
-    assert local_background(img, (45, 20, 10, 10), 5, 5, 99.0, 12.0) == pytest.approx(3.0)
-    assert local_background(img, (45, 40, 10, 10), 60, 5, 99.0, 12.0) == 99.0
+    assert local_background(img, (45, 20, 10, 10), 5, 5, 99.0, 12.0) == pytest.approx(
+        (3.0, 0.0, 0.0))
+    assert local_background(img, (45, 40, 10, 10), 60, 5, 99.0, 12.0) == (99.0, 0.0, 0.0)
+    # a gradient, the ring cut by the bottom edge: the plane extrapolates
+    ramp = 3.0 + 0.02 * np.indices((100, 100))[1] - 0.03 * np.indices((100, 100))[0]
+    level, gu, gv = local_background(ramp, (40, 80, 20, 20), 5, 5, 99.0, 50.0)
+    assert (level, gu, gv) == pytest.approx((3.0 + 0.02 * 49.5 - 0.03 * 89.5, 0.02, -0.03))
+
+
+def _cut_near_lamp(rng, ramp_dn_per_px=(-0.004, 0.008)):
+    """The rig's lamp 0.5 m ahead, striped, PSF and halo, on a background gradient, in a
+    120 × 200 crop whose bottom edge is the image's: the edge cuts the ellipse 20 rows
+    below its centre (its top tip is in, its bottom tip 28 rows off the image).
+
+    Returns the image and the imaged ellipse's centre (crop pixels)."""
+    from vlc_stereo_camera.core.camera import StereoRig
+    rig = StereoRig()
+    normal = rig.R_base_cam.T @ np.array([0.0, -1.0, 0.0])
+    centre = rig.to_camera(np.array([[0.5, 2.5, 1.4]]), np.zeros(3), np.eye(3), 0)[0]
+    K = rig.intrinsics.K.copy()
+    K[0, 2] -= 56.0                  # crop columns 56…255, rows 600…719 of the frame
+    K[1, 2] -= 600.0
+    shape = (120, 200)
+    img = synth.render_disc(shape, K, centre, normal, 0.1, radiance=150.0,
+                            level=synth.random_chip_level(rng), supersample=4,
+                            psf_sigma_px=0.7, halo_sigma_px=6.0, halo_fraction=0.02)
+    vv, uu = np.indices(shape)
+    img = img + ramp_dn_per_px[0] * uu + ramp_dn_per_px[1] * vv
+    truth = synth.conic_centre(synth.disc_conic(K, centre, normal, 0.1))
+    return synth.add_noise(img, rng, read_noise=1.5, background=6.0), truth
+
+
+def test_chord_fit_of_a_spot_cut_by_the_image_edge():
+    """The nearest lamp, cut by the bottom edge: the width parabola sees one tip only, so
+    the PSF's widening of the tip rows is no longer balanced by the other tip (the vertex
+    moves), and the background gradient across its 100-px rows moves every midpoint. The
+    symmetric row band and the background plane remove both; each alone is not enough,
+    and the reported σ covers the error."""
+    def locator(plane, symmetric):
+        return SpotLocator(LocatorConfig(
+            method='chord', eccentricity='off', vignetting='none',
+            detect=DetectConfig(background_plane=plane),
+            chord=cm.ChordConfig(symmetric_width_rows=symmetric)))
+    variants = {'both': locator(True, True), 'plane only': locator(True, False),
+                'band only': locator(False, True), 'neither': locator(False, False)}
+    errs = {k: [] for k in variants}
+    sigma_u = []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        img, c = _cut_near_lamp(rng)
+        for name, loc in variants.items():
+            region = detect_spots(img, loc.cfg.detect)[0]
+            assert region.row_max == img.shape[0] - 1 or region.row_max >= img.shape[0] - 4
+            spot = loc.measure(region, region.roi)
+            errs[name].append([spot.u - c[0], spot.v - c[1]])
+            if name == 'both':
+                assert spot.est.info['v_from_width']
+                sigma_u.append(spot.est.sigma_u)
+    rms = {k: np.sqrt(np.mean(np.square(e), axis=0)) for k, e in errs.items()}
+    assert rms['both'][0] < 0.035 and rms['both'][1] < 0.09, rms
+    for name in ('plane only', 'band only', 'neither'):
+        assert rms[name][0] > 1.3 * rms['both'][0], (name, rms)
+    assert rms['neither'][0] > 2.0 * rms['both'][0], rms
+    assert np.median(sigma_u) > rms['both'][0], (sigma_u, rms['both'])
 
 
 def test_chord_fit_on_a_striped_perspective_disc_finds_the_ellipse_centre():

@@ -204,6 +204,10 @@ class ChordConfig:
         maximum, which noise lifts most in the dimmest rows, the mean is unbiased.
     two_pass: False keeps the single pass over each row's own support even when the
         detection threshold is known (the method before the second pass; for comparison).
+    symmetric_width_rows: for a spot whose first-pass ellipse runs past its ROI's top or
+        bottom row (cut by the image edge: one tip only), the width parabola's vertex is
+        refitted on the rows within the shorter side's reach of it (the PSF's width error
+        near a tip cancels only between two tips); False: every row.
     """
 
     min_row_snr: float = 8.0
@@ -214,6 +218,7 @@ class ChordConfig:
     window_margin_px: float = 2.0
     plateau_margin_px: float = 1.5
     two_pass: bool = True
+    symmetric_width_rows: bool = True
 
 
 @dataclass
@@ -322,7 +327,8 @@ def _measure_rows(sums, rows, lo, hi, core_lo=None, core_hi=None, plateau_margin
     return _Rows(rows.astype(float), S, M, spread2, n_pix, P, n_core, clipped)
 
 
-def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, threshold=None):
+def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, threshold=None,
+              edge_rows=(True, True)):
     """Row-chord ellipse fit of a striped spot (ROI coordinates).
 
     Parameters
@@ -342,13 +348,16 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, thresh
         (widened by ``window_margin_px``) with the mean of its fully covered pixels as
         its plateau. Without it (or with ``two_pass`` off), one pass over every row's
         own support.
+    edge_rows : (bool, bool) the ROI's first / last row is the image's: where the first
+        ellipse runs past such a row, the image edge cut the spot (``info['cut']``).
 
     Returns
     -------
     CentreEstimate with ``conic`` (the fitted ellipse, None when the centre row could not
     come from the chord widths) and ``info`` holding the midpoint line (``a``, ``k``,
     ``vbar``, ``cov_line``), the width parabola ``quad`` (in v − vbar), the centre row's
-    variance ``var_v``, ``v_from_width`` and ``passes`` (1 or 2).
+    variance ``var_v``, ``v_from_width``, ``passes`` (1 or 2) and ``cut`` (the ellipse runs
+    past the ROI's top or bottom row).
 
     Notes
     -----
@@ -402,7 +411,12 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, thresh
                           np.minimum(mid - half - cfg.window_margin_px, own_lo[inside]),
                           np.maximum(mid + half + cfg.window_margin_px, own_hi[inside]),
                           mid - half + cfg.plateau_margin_px, mid + half - cfg.plateau_margin_px)
-    second = _fit_rows(rows2, noise_sigma, cfg, passes=2)
+    # the first ellipse runs past the ROI's top or bottom row, and that row is the
+    # image's: the edge cut one of its tips (a tip hidden in a dark stripe inside the
+    # image keeps its rows, measured here like any other)
+    cut = bool(((np.polyval(w2_poly, [-1.0 - vbar, h - vbar]) > 0.0)
+                & np.asarray(edge_rows, bool)).any())
+    second = _fit_rows(rows2, noise_sigma, cfg, passes=2, cut=cut)
     return second if second.info.get('v_from_width') else _fit_rows(own, noise_sigma, cfg, 1)
 
 
@@ -435,8 +449,11 @@ def _sketch_ellipse(rows, noise_sigma, cfg):
     return vbar, mid_poly, w2_poly
 
 
-def _fit_rows(rows, noise_sigma, cfg, passes):
-    """Midpoint line and half-chord² parabola through measured rows (see chord_fit)."""
+def _fit_rows(rows, noise_sigma, cfg, passes, cut=False):
+    """Midpoint line and half-chord² parabola through measured rows (see chord_fit).
+
+    ``cut``: the spot has one tip only (see ``ChordConfig.symmetric_width_rows``).
+    """
     lit = rows.S > cfg.min_row_snr * noise_sigma * np.sqrt(np.maximum(rows.n_pix, 1))
     n_lit = int(np.count_nonzero(lit))
     if n_lit < 3:
@@ -464,23 +481,27 @@ def _fit_rows(rows, noise_sigma, cfg, passes):
     v_from_width = False
     quad = None
     if len(idx) >= 4:
-        h_u, d_u = half[idx], dv[idx]
-        y = h_u * h_u
-        # relative error of the half-chord: noise on the sum and on the plateau
-        rel = noise_sigma * (np.sqrt(n_pix[idx]) / S[idx]
-                             + 1.0 / (P[idx] * np.sqrt(n_core[idx])))
-        var_y = ((2.0 * y * rel) ** 2 + (2.0 * cfg.systematic_px * h_u) ** 2
-                 + (cfg.width_floor_fraction * y.max()) ** 2)
-        quad, cov_q, _ = _wls(d_u, y, 1.0 / var_y, 2)
-        span = d_u[-1] - d_u[0]
-        # a width profile with no significant curvature (a Gaussian spot) has no vertex
-        if quad[2] < -3.0 * np.sqrt(cov_q[2, 2]) and span > 2.0:
-            d0 = -quad[1] / (2.0 * quad[2])
-            # the vertex must lie within the rows that carry signal
-            if dv[0] - 1.0 <= d0 <= dv[-1] + 1.0:
-                g = np.array([0.0, -1.0 / (2 * quad[2]), quad[1] / (2 * quad[2] ** 2)])
-                var_d0 = float(g @ cov_q @ g)
-                v_from_width = True
+        vertex = _width_vertex(half[idx], dv[idx], S[idx], P[idx], n_pix[idx], n_core[idx],
+                               noise_sigma, cfg, dv[0] - 1.0, dv[-1] + 1.0)
+        if vertex is not None and cut and cfg.symmetric_width_rows:
+            # The optics PSF widens the narrow rows near a tip (the vertical blur lowers
+            # their plateau more than their sum), an error symmetric about the centre
+            # row: it cancels in the vertex only when both sides are sampled alike. A
+            # spot cut by the image edge is not: keep the rows within the shorter
+            # side's reach of the vertex. (A whole spot keeps every row: its usable rows
+            # are nearly balanced, and dropping any costs more than it removes.)
+            for _ in range(2):
+                reach = min(vertex[0] - dv[idx[0]], dv[idx[-1]] - vertex[0])
+                band = idx[np.abs(dv[idx] - vertex[0]) <= reach + 0.5]
+                if len(band) == len(idx) or len(band) < 4:
+                    break
+                idx = band
+                vertex = _width_vertex(half[idx], dv[idx], S[idx], P[idx], n_pix[idx],
+                                       n_core[idx], noise_sigma, cfg, dv[0] - 1.0,
+                                       dv[-1] + 1.0) or vertex
+        if vertex is not None:
+            d0, var_d0, quad = vertex
+            v_from_width = True
     if not v_from_width:
         # no usable width profile (Gaussian or tiny spot): signal-weighted centre row
         S_sum = S.sum()
@@ -495,7 +516,31 @@ def _fit_rows(rows, noise_sigma, cfg, passes):
                           {'a': float(a), 'k': float(k), 'vbar': vbar,
                            'cov_line': cov_line, 'var_v': var_d0, 'quad': quad,
                            'v_from_width': v_from_width, 'line_rms_px': res_line,
-                           'passes': passes})
+                           'passes': passes, 'cut': cut})
+
+
+def _width_vertex(half, d, S, P, n_pix, n_core, noise_sigma, cfg, d_min, d_max):
+    """Vertex of the half-chord² parabola through rows at offsets ``d`` (px).
+
+    Returns ``(d0, var_d0, quad)`` (vertex offset, its variance, parabola coefficients
+    lowest power first) or None when the rows show no significant downward curvature or
+    the vertex falls outside ``[d_min, d_max]``.
+    """
+    y = half * half
+    # relative error of the half-chord: noise on the sum and on the plateau
+    rel = noise_sigma * (np.sqrt(n_pix) / S + 1.0 / (P * np.sqrt(n_core)))
+    var_y = ((2.0 * y * rel) ** 2 + (2.0 * cfg.systematic_px * half) ** 2
+             + (cfg.width_floor_fraction * y.max()) ** 2)
+    quad, cov_q, _ = _wls(d, y, 1.0 / var_y, 2)
+    # a width profile with no significant curvature (a Gaussian spot) has no vertex
+    if not (quad[2] < -3.0 * np.sqrt(cov_q[2, 2]) and d[-1] - d[0] > 2.0):
+        return None
+    d0 = -quad[1] / (2.0 * quad[2])
+    # the vertex must lie within the rows that carry signal
+    if not d_min <= d0 <= d_max:
+        return None
+    g = np.array([0.0, -1.0 / (2 * quad[2]), quad[1] / (2 * quad[2] ** 2)])
+    return float(d0), float(g @ cov_q @ g), quad
 
 
 def _wls(x, y, weights, degree):

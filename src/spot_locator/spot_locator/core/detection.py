@@ -27,6 +27,8 @@ class DetectConfig:
         beyond the optics halo and the dark-stripe tips the threshold misses.
     local_background: False subtracts the frame's background level instead (the method
         before the local level; for comparison).
+    background_plane: the local background is a plane fitted to the ring (level and
+        gradient); False: the ring's mean level (the method before the plane).
     """
 
     threshold_snr: float = 6.0
@@ -38,6 +40,7 @@ class DetectConfig:
     background_gap_px: int = 16
     background_ring_px: int = 8
     local_background: bool = True
+    background_plane: bool = True
 
 
 @dataclass
@@ -49,9 +52,12 @@ class SpotRegion:
     grown by one pixel (bool). ``row_min``, ``row_max``: image rows covered by the
     component. ``touches_border``: the component reaches the image edge; ``cut_columns``:
     it reaches the left or right edge (its rows are truncated).
-    ``background`` (DN): the spot's local background level, subtracted from ``roi``;
+    ``background`` (DN): the spot's local background level at the centre of its box and
+    ``background_slope`` (DN/px along u, v) its gradient: the plane subtracted from
+    ``roi``;
     ``noise_sigma`` (DN) and the ``threshold`` used (DN above the frame's background).
-    ``saturated``: ROI pixels at the sensor's full scale (bool).
+    ``saturated``: ROI pixels at the sensor's full scale (bool). ``edge_rows``: the ROI's
+    (first, last) row is the image's.
     """
 
     u0: int
@@ -67,6 +73,8 @@ class SpotRegion:
     threshold: float
     saturated: np.ndarray = None
     cut_columns: bool = False
+    background_slope: tuple = (0.0, 0.0)
+    edge_rows: tuple = (False, False)
 
 
 def background_and_noise(image, step=8):
@@ -87,26 +95,37 @@ def background_and_noise(image, step=8):
     return med, max(1.4826 * mad, 0.29)
 
 
-def local_background(image, box, gap_px, ring_px, frame_background, ceiling):
-    """Background level (DN) around one spot: the mean over a ring outside its box.
+def local_background(image, box, gap_px, ring_px, frame_background, ceiling, plane=True):
+    """Background around one spot: a plane fitted to a ring outside its box.
 
     Parameters
     ----------
     image : (H, W) the frame.
     box : (x, y, w, h) the spot's bounding box (px).
     gap_px, ring_px : the ring spans ``gap_px`` to ``gap_px + ring_px`` outside the box.
-    frame_background : the frame's level (DN), returned when the ring holds too few
-        background pixels.
+    frame_background : the frame's level (DN), returned (flat) when the ring holds too
+        few background pixels.
     ceiling : ring pixels above it (DN; the detection threshold) belong to another lamp
         and are left out.
+    plane : fit a plane (level and slopes); False: the ring's mean, flat.
+
+    Returns
+    -------
+    (level, slope_u, slope_v): the background at the box centre (DN) and its gradient
+    (DN/px along u and v); ``level + slope_u (u − uc) + slope_v (v − vc)`` at image pixel
+    (u, v), with (uc, vc) = (x + (w − 1)/2, y + (h − 1)/2).
 
     Notes
     -----
     The tunnel's background is not flat (ambient light, dark current), and a spot's
     width is measured from row sums: an offset of δ DN per pixel changes a row's sum by
     δ times its window's width, which for the rows of a dark stripe (a few % of the lamp
-    level) is a large fraction of their signal. The mean, not the median: 8-bit levels
-    of a near-black background are integers, and their median is off by up to ½ DN.
+    level) is a large fraction of their signal. A gradient g (DN/px) along a row moves
+    that row's first moment by g w²/(3 P) (half-chord w, plateau P): 0.03 px for the
+    rig's nearest lamp (w ≈ 47 px) at the rig's 0.002 DN/px, after the flat field; and
+    where the image edge cuts the ring on one side, the level at the far rows is an
+    extrapolation that only a plane gets right. The mean, not a median: 8-bit levels of
+    a near-black background are integers, and their median is off by up to ½ DN.
     """
     x, y, w, h = box
     H, W = image.shape
@@ -115,10 +134,38 @@ def local_background(image, box, gap_px, ring_px, frame_background, ceiling):
     c0, c1 = max(x - outer, 0), min(x + w + outer, W)
     i0, i1 = max(y - gap_px, 0), min(y + h + gap_px, H)
     j0, j1 = max(x - gap_px, 0), min(x + w + gap_px, W)
-    ring = np.concatenate([image[r0:i0, c0:c1].ravel(), image[i1:r1, c0:c1].ravel(),
-                           image[i0:i1, c0:j0].ravel(), image[i0:i1, j1:c1].ravel()])
-    kept = ring[ring <= ceiling]
-    return float(kept.mean()) if kept.size >= 16 else float(frame_background)
+    uc, vc = x + 0.5 * (w - 1), y + 0.5 * (h - 1)
+    # moments of the kept ring pixels about (uc, vc): n, Σu, Σv, Σu², Σuv, Σv², Σz, Σuz, Σvz
+    block = image[r0:r1, c0:c1]
+    keep = block <= ceiling
+    keep[i0 - r0:i1 - r0, j0 - c0:j1 - c0] = False          # the spot's side of the ring
+    keep = keep.astype(np.float32)
+    z = block * keep
+    u = np.arange(c0 - uc, c1 - uc)
+    v = np.arange(r0 - vc, r1 - vc)
+    k_col, k_row = keep.sum(axis=0), keep.sum(axis=1)
+    z_col, z_row = z.sum(axis=0), z.sum(axis=1)
+    n = float(k_col.sum())
+    if n < 16:
+        return float(frame_background), 0.0, 0.0
+    mean = float(z_col.sum()) / n
+    if not plane:
+        return mean, 0.0, 0.0
+    # least-squares plane in closed form, about the ring pixels' own mean position
+    ub, vb = float(k_col @ u) / n, float(k_row @ v) / n
+    cuu = float(k_col @ (u * u)) - n * ub * ub
+    cvv = float(k_row @ (v * v)) - n * vb * vb
+    cuv = float(v @ (keep @ u)) - n * ub * vb
+    czu = float(z_col @ u) - n * mean * ub
+    czv = float(z_row @ v) - n * mean * vb
+    det = cuu * cvv - cuv * cuv
+    # a ring cut to one strip by the image corner has no slope across that strip
+    if not det > 1e-6 * cuu * cvv:
+        return mean, 0.0, 0.0
+    slope_u = (cvv * czu - cuv * czv) / det
+    slope_v = (cuu * czv - cuv * czu) / det
+    level = mean - slope_u * ub - slope_v * vb
+    return float(level), float(slope_u), float(slope_v)
 
 
 def detect_spots(image, config=None):
@@ -161,15 +208,23 @@ def detect_spots(image, config=None):
             continue
         support = cv2.dilate(closed, grow).astype(bool)
         raw = img[v0:v1, u0:u1]
-        local_bg = (local_background(img, (x, y, bw, bh), cfg.background_gap_px,
-                                     cfg.background_ring_px, bg, bg + thr)
-                    if cfg.local_background else bg)
-        roi = raw.astype(np.float32) - local_bg
+        if cfg.local_background:
+            local_bg, slope_u, slope_v = local_background(
+                img, (x, y, bw, bh), cfg.background_gap_px, cfg.background_ring_px, bg,
+                bg + thr, cfg.background_plane)
+        else:
+            local_bg, slope_u, slope_v = bg, 0.0, 0.0
+        roi = raw.astype(np.float32) - np.float32(local_bg)
+        if slope_u or slope_v:
+            # the plane about the box centre, in the ROI's pixel grid
+            cu, cv_ = x + 0.5 * (bw - 1) - u0, y + 0.5 * (bh - 1) - v0
+            roi -= (slope_u * (np.arange(u1 - u0) - cu)[None, :]
+                    + slope_v * (np.arange(v1 - v0) - cv_)[:, None]).astype(np.float32)
         cut_columns = x == 0 or x + bw == w
         touches = cut_columns or y == 0 or y + bh == h
         out.append(SpotRegion(int(u0), int(v0), roi, support, int(y), int(y + bh - 1),
                               area, bool(touches), local_bg, sigma, thr, raw >= full_scale,
-                              bool(cut_columns)))
+                              bool(cut_columns), (slope_u, slope_v), (v0 == 0, v1 == h)))
     out.sort(key=lambda spot: -spot.area_px)
     return out[:cfg.max_spots]
 

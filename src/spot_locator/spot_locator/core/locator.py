@@ -231,7 +231,7 @@ class SpotLocator:
         alpha = float('nan')
         if method == 'chord':
             est = cm.chord_fit(roi, region.support, noise, self.cfg.chord, region.saturated,
-                               region.threshold)
+                               region.threshold, region.edge_rows)
         else:
             closed = cm.close_stripes(np.where(region.support, roi, 0.0),
                                       self.cfg.detect.closing_rows)
@@ -339,7 +339,10 @@ class SpotLocator:
             uv_l[1] = uv_r[1] = row_centre
         if a.est.info.get('v_from_width') and b.est.info.get('v_from_width'):
             flags |= FLAG_V_FROM_WIDTH
-        if a.region.touches_border or b.region.touches_border:
+        # cut: the component reaches the edge, or the fitted ellipse runs past it (its last
+        # rows there in a dark stripe)
+        if (a.region.touches_border or b.region.touches_border or a.est.info.get('cut')
+                or b.est.info.get('cut')):
             flags |= FLAG_CUT_BY_BORDER
         d = float(uv_l[0] - uv_r[0])
         if not np.isfinite(d) or d <= 0.0:
