@@ -6,7 +6,7 @@ VENV := .venv
 STAMP := $(VENV)/.requirements-installed
 ENV := source scripts/env.sh
 
-.PHONY: setup build demo test bench clean
+.PHONY: setup build demo test bench evaluate clean
 
 setup: build
 
@@ -27,6 +27,9 @@ test: setup
 
 bench: setup
 	@$(ENV) && bash scripts/bench.sh
+
+evaluate: setup
+	@$(ENV) && bash scripts/evaluate.sh
 
 clean:
 	rm -rf build install log out

@@ -30,9 +30,9 @@ def test_camera_timing_agrees_across_nodes(key):
     assert len(set(values.values())) == 1, f'{key} differs between nodes: {values}'
 
 
-def test_system_runs_20_kchips_with_25_us_exposure():
+def test_system_runs_21_15_kchips_with_25_us_exposure():
     cam = _params(FILES['stereo_camera_node'])
-    assert cam['chip_rate_hz'] == 20000.0 and cam['exposure_s'] == 2.5e-05
+    assert cam['chip_rate_hz'] == 21150.0 and cam['exposure_s'] == 2.5e-05
 
 
 def test_demo_pictures_show_the_graphs_camera_timing():

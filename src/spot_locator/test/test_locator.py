@@ -196,3 +196,10 @@ def test_bad_configuration_and_input_raise():
         locator.process(np.zeros((720, 1280), np.uint8), np.zeros((720, 640), np.uint8))
     empty = locator.process(np.zeros(SHAPE, np.uint8), np.zeros(SHAPE, np.uint8))
     assert empty.pairs == [] and empty.n_left == 0
+
+
+def test_warm_up_runs_the_whole_pipeline_on_a_synthetic_pair():
+    # standing and moving: one pair each, so detection, the chord fit, matching and both
+    # eccentricity corrections have all run
+    locator = SpotLocator(_config(vignetting='cos4', wiener=True), StereoGeometry())
+    assert locator.warm_up() == 2

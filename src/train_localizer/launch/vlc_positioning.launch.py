@@ -21,7 +21,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -46,7 +46,10 @@ def generate_launch_description():
     }
     lamp_map = {'lamp_map_path': LaunchConfiguration('lamp_map_path')}
     rig = _config('vlc_stereo_camera', 'rig.yaml')
-    return LaunchDescription([
+    # one BLAS/OpenMP thread per node (scripts/env.sh says why), unless the caller chose
+    threads = [SetEnvironmentVariable(name, os.environ.get(name, '1'))
+               for name in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS')]
+    return LaunchDescription(threads + [
         DeclareLaunchArgument('use_rig', default_value='true',
                               description='Start the synthetic stereo camera and IMU.'),
         DeclareLaunchArgument('use_sim_time', default_value='false',

@@ -6,7 +6,7 @@ few rows per frame at 30 frames/s, each row integrating the exact waveform.
 import numpy as np
 import pytest
 
-from vlc_decoder.core import chips, synth
+from vlc_decoder.core import assembly, chips, synth
 from vlc_decoder.core.assembly import CONFIRMED, PARTIAL, PacketAssembler
 from vlc_decoder.core.config import DecoderConfig
 
@@ -138,3 +138,44 @@ def test_packet_start_is_located_by_structure_never_by_trying_phases_against_the
     assert brute_wrong > 50, brute_wrong      # the CRC alone lets wrong UIDs through
     assert structural_wrong == 0, (structural_wrong, brute_wrong, structural_right)
     assert structural_right > 300
+
+
+def test_off_spec_clock_fragments_are_placed_by_their_overlaps(monkeypatch):
+    """0.1 % and 2 % off: 8 frames of 30 chips each. The frame-to-frame phase is lost,
+    but each fragment's own chips overlap the fold built so far at one shift only."""
+    def confirmed(error):
+        rng = np.random.default_rng(31)
+        count = 0
+        for _ in range(30):
+            uid = int(rng.integers(0, 1 << 16))
+            signal = synth.LampSignal(uid, chip_rate_hz=1e4 * (1 + rng.choice([-1, 1]) * error),
+                                      phase_s=rng.uniform(0, 1))
+            asm, _ = run(signal, 8, 100, rng)
+            assert asm.uid in (None, uid)
+            count += asm.uid == uid
+        return count
+
+    with_overlaps = {e: confirmed(e) for e in (1e-3, 2e-2)}
+    monkeypatch.setattr(assembly, 'MIN_OVERLAP_CHIPS', 10 ** 6)
+    without = {e: confirmed(e) for e in (1e-3, 2e-2)}
+    for error in with_overlaps:
+        assert with_overlaps[error] >= 26 and with_overlaps[error] > without[error]
+
+
+def test_partial_packet_publishes_the_data_bits_it_has_read():
+    """Before the CRC can be checked, the bits read so far (for matching the lamp a
+    map predicts) are the lamp's: data_word agrees with UID << 8 | CRC under data_mask."""
+    rng = np.random.default_rng(17)
+    partial = 0
+    for _ in range(10):
+        uid = int(rng.integers(0, 1 << 16))
+        signal = synth.LampSignal(uid, phase_s=rng.uniform(0, 1))
+        asm = PacketAssembler(CFG, 0)
+        true_word = int(''.join(str(int(c)) for c in synth.text_packets([uid])[0][6::2]), 2)
+        for k in range(40):
+            asm.add(*fragment(signal, k, int(rng.integers(50, 600)), 20, rng))
+            assert bin(asm.data_mask).count('1') == (asm.bits_known if asm.data_mask else 0)
+            assert (asm.data_word ^ true_word) & asm.data_mask == 0
+            partial += 0 < asm.bits_known < 24
+        assert asm.uid == uid and asm.data_mask == 0xFFFFFF and asm.data_word == true_word
+    assert partial > 20

@@ -214,3 +214,46 @@ def test_node_reports_uid_absent_from_the_map_as_anomaly(harness, tmp_path):
     assert np.isnan(anomaly['map_x'])
     values, status = h.stats()
     assert status.level == b'\x01' and f'{UID_FIRST:#06x}' in values['anomalous_uids']
+
+
+def test_node_starts_afresh_when_a_looped_bag_jumps_back(harness):
+    """Stamps jumping back by more than stamp_jump_reset_s (a looped replay) reset the
+    lamp tracks with a warning and decoding goes on; a smaller step back is skipped."""
+    h = harness()
+    run = list(frames(45))
+    track_ids = set()
+    for stamp, left, right, _ in run:
+        out = h.send(image_msg(left, stamp), image_msg(right, stamp))
+        track_ids |= set(conversions.cloud_to_array(out[-1])['track_id'].tolist())
+    assert track_ids
+    last = run[-1][0]
+    # 10 ms back: a late frame, skipped
+    stamp, left, right, _ = run[-2]
+    assert not h.send(image_msg(left, last - 10 ** 7), image_msg(right, last - 10 ** 7),
+                      wait_output=False)
+    replayed = []
+    for stamp, left, right, _ in run[20:26]:
+        out = h.send(image_msg(left, stamp), image_msg(right, stamp))
+        assert out, 'the replay after the jump is decoded, not skipped'
+        replayed.append(conversions.cloud_to_array(out[-1]))
+    first = replayed[0]
+    assert len(first) and not np.any(first['state'] == 2), 'state carried across the jump'
+    assert min(first['track_id']) > max(track_ids)
+    values, _ = h.stats()
+    assert int(values['resets_stamp_jump']) == 1
+    assert int(values['skipped_out_of_order']) == 2      # both images of the pair
+
+
+def test_parameter_file_and_declared_defaults_carry_the_same_signal_timing():
+    """The node's params file is where the graph's timing is written (benchmarks and the
+    fuzz read it there); the node's declared defaults must say the same."""
+    import pathlib
+
+    from vlc_decoder.core.config import SIGNAL_TIMING_KEYS, signal_timing_from_params_file
+    from vlc_decoder.vlc_decoder_node import CORE_PARAMETERS
+    path = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'vlc_decoder_node.yaml'
+    timing = signal_timing_from_params_file(path)
+    declared = {name: default for name, default, _ in CORE_PARAMETERS}
+    assert set(timing) == set(SIGNAL_TIMING_KEYS)
+    for key, value in timing.items():
+        assert declared[key] == pytest.approx(value), key

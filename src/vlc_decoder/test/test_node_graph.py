@@ -4,6 +4,7 @@ Both run as separate processes; a probe compares every lamp the decoder publishe
 confirmed with the rig's ground truth of the same frame (nearest projected lamp centre),
 and the warnings of bad input with the executable's log.
 """
+import pathlib
 import time
 
 import numpy as np
@@ -17,8 +18,10 @@ from sensor_msgs.msg import Image, PointCloud2
 
 from vlc_decoder import conversions
 from vlc_decoder.core import synth
+from vlc_decoder.core.config import signal_timing_from_params_file
 
 pytestmark = pytest.mark.graph
+NODE_PARAMS = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'vlc_decoder_node.yaml'
 
 _TYPES = {PointField_type: np.dtype(code) for PointField_type, code in
           ((1, 'i1'), (2, 'u1'), (3, '<i2'), (4, '<u2'), (5, '<i4'), (6, '<u4'), (7, '<f4'),
@@ -52,9 +55,13 @@ def _probe(ctx, topics):
 def test_installed_decoder_fed_by_installed_rig_publishes_the_right_uids(launch, ros_env):
     scenario = {'seed': 4, 'motion_profile': 'constant', 'start_chainage_m': -1.0,
                 'speed_kmh': 40.0}
-    decoder = launch('vlc_decoder', 'vlc_decoder_node')
+    # lamps and decoder at the graph's timing (the decoder's params file), whatever the
+    # nodes' declared defaults
+    timing = {key: value for key, value in signal_timing_from_params_file(NODE_PARAMS).items()
+              if key in ('chip_rate_hz', 'exposure_s')}
+    decoder = launch('vlc_decoder', 'vlc_decoder_node', params=timing)
     cam = launch('vlc_stereo_camera', 'stereo_camera_node',
-                 params={**scenario, 'noise_bank_size': 2, 'publish_clock': False,
+                 params={**scenario, **timing, 'noise_bank_size': 2, 'publish_clock': False,
                          'realtime_factor': 1.0, 'wait_for_subscribers': 1})
     ctx = Context()
     rclpy.init(context=ctx)

@@ -108,3 +108,30 @@ def test_row_profile_reads_chips_of_a_frame():
         errors += int(np.count_nonzero(on != (res['states'][0][k] == chips.ON)))
         read += len(k)
     assert read > 30 * 12 and errors == 0
+
+
+@pytest.mark.parametrize('height, width', [(40, 16), (70, 45)])
+def test_envelope_fitted_on_the_on_rows_reads_the_cap_rows(height, width):
+    """The lit extent ends early when a cap chip is off and late when the optics spill an
+    "on" cap; the parabola through the squared sums of the rows read "on" (an ellipse's
+    squared chord) recovers the disc, so the partly weighted cap rows read true too."""
+    rng = np.random.default_rng(21)
+    errors = []
+    for _ in range(30):
+        signal, left, _ = render_one(rng, int(rng.integers(0, 1 << 16)), height, width)
+        spot = spots.detect(left, CFG)[0]
+        truth = true_levels(signal, spot.rows)
+        caps = (spot.weight > 0) & (spot.weight < spots.CAP_HI)
+        errors += list(np.abs(spot.level[caps] - truth[caps]))
+        assert abs(spot.v - 300.0) < 1.0
+    assert len(errors) > 100
+    assert np.median(errors) < 0.05 and np.percentile(errors, 95) < 0.25
+
+
+def test_tiny_spots_are_profiled_or_dropped_never_crash():
+    image = np.full((720, 1280), 4, np.uint8)
+    image[100, 200:204] = 200            # one row
+    image[300:302, 500] = 180            # one column
+    image[500, 700] = 255                # one pixel
+    for spot in spots.detect(image, CFG):
+        assert len(spot.rows) == len(spot.level) == len(spot.weight) > 0

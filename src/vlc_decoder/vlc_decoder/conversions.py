@@ -1,7 +1,7 @@
 """Messages ↔ arrays for the decoder node: images in, lamp records and diagnostics out.
 
 ``vlc/lamps`` (sensor_msgs/PointCloud2, one point per lamp seen in the frame, header =
-the left image's header, little endian, ``point_step`` 104):
+the left image's header, little endian, ``point_step`` 112):
 
 | field | type | offset | unit / meaning |
 |---|---|---|---|
@@ -17,6 +17,8 @@ the left image's header, little endian, ``point_step`` 104):
 | left_u_min, left_v_min, left_u_max, left_v_max | float32 | 64–76 | px, spot bounding box (inclusive) |
 | right_u, right_v | float32 | 80, 84 | px, right image |
 | right_u_min, right_v_min, right_u_max, right_v_max | float32 | 88–100 | px |
+| data_bits | uint32 | 104 | the 24 data bits (UID << 8 \| CRC-8, MSB first) read so far, once the packet start is located; unknown bits 0 |
+| data_mask | uint32 | 108 | 1 for each data bit known: a partial packet, to be matched against the lamp the map predicts at that place, never a UID |
 """
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -35,6 +37,7 @@ LAMP_DTYPE = np.dtype([
     ('right_u', '<f4'), ('right_v', '<f4'),
     ('right_u_min', '<f4'), ('right_v_min', '<f4'), ('right_u_max', '<f4'),
     ('right_v_max', '<f4'),
+    ('data_bits', '<u4'), ('data_mask', '<u4'),
 ])
 
 
@@ -114,7 +117,8 @@ def records_to_array(records, row_time_s, exposure_s):
         out[i] = (pos[0], pos[1], pos[2], rec.track_id, max(rec.uid, 0) if rec.state >= 2
                   else 0, rec.state, rec.chips_seen, rec.bits_known, flags,
                   rec.mid_row * row_time_s + 0.5 * exposure_s,
-                  *_spot_fields(rec.left), *_spot_fields(rec.right))
+                  *_spot_fields(rec.left), *_spot_fields(rec.right),
+                  rec.data_word, rec.data_mask)
     return out
 
 

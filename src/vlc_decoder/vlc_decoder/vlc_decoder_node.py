@@ -20,11 +20,14 @@ Publishes:
   appears (an anomaly, never published as a lamp).
 
 Bad input (unknown encoding, empty or truncated image, left/right size mismatch,
-unpaired or out-of-order stamps) gives a throttled warning and the frame is skipped.
+unpaired or out-of-order stamps) gives a throttled warning and the frame is skipped. A
+stamp more than ``stamp_jump_reset_s`` before the last decoded frame (a looped bag)
+resets the lamp tracks with a throttled warning and decoding starts afresh.
 Frames are decoded on the executor thread: a stereo pair takes a few milliseconds
 (``decoder_benchmark``), well inside the 33 ms frame period. OpenCV runs single-threaded.
 """
 import collections
+import gc
 import sys
 import time
 
@@ -75,11 +78,11 @@ CORE_PARAMETERS = (
     ('row_time_s', 30e-6, _float('Delay between the exposure starts of two rows, s.',
                                  1e-7, 1e-3)),
     ('exposure_s', 25e-6, _float('Row exposure time, s.', 1e-7, 0.033)),
-    ('chip_rate_hz', 20_000.0, _float('Nominal lamp chip rate, chips/s.', 2000.0, 40000.0)),
+    ('chip_rate_hz', 21_150.0, _float('Nominal lamp chip rate, chips/s.', 2000.0, 40000.0)),
     ('off_level', 0.05, _float('Lamp "off" output relative to "on".', 0.0, 0.49)),
     ('chip_margin', 0.2, _float('A chip is read only this far (normalised level) from 0.5.',
                                 0.05, 0.45)),
-    ('min_chip_weight', 0.6, _float('Evidence (fully-inside row exposures) a chip read '
+    ('min_chip_weight', 0.2, _float('Evidence (fully-inside row exposures) a chip read '
                                     'needs.', 0.1, 10.0)),
     ('rate_search_tolerance', 0.03, _float('Within-frame chip-rate search span (fraction).',
                                            0.0, 0.1)),
@@ -87,6 +90,8 @@ CORE_PARAMETERS = (
                                            'rate.', 4.0, 1000.0)),
     ('clock_tolerance_ppm', 100.0, _float('Lamp clock accuracy assumed frame to frame, ppm.',
                                           1.0, 10000.0)),
+    ('psf_sigma_px', 0.7, _float('Lens blur, Gaussian sigma of the PSF core, px (the '
+                                 "camera's); models the spot's row envelope.", 0.0, 10.0)),
     ('detect_threshold_sigma', 8.0, _float('Spot threshold above the background, in '
                                            'background noise sigmas.', 2.0, 100.0)),
     ('detect_min_contrast', 20.0, _float('Spot threshold at least this far above the '
@@ -100,6 +105,9 @@ CORE_PARAMETERS = (
                                    1.0, 2000.0)),
     ('track_max_missed_frames', 15, _int('Frames a track survives unseen.', 0, 1000)),
     ('max_fragments', 120, _int('Frames of stripes kept per lamp for assembly.', 2, 10000)),
+    ('stamp_jump_reset_s', 0.05, _float('An image stamped more than this before the last '
+                                        'frame (looped bag) resets the lamp tracks, s.',
+                                        0.0, 3600.0)),
     ('border_margin_px', 2, _int('A spot this close to the left/right border is cut.',
                                  0, 100)),
 )
@@ -180,6 +188,15 @@ class VlcDecoderNode(Node):
 
     def _on_image(self, side, msg):
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if self.tracker.stamp_jumped_back(stamp_ns):
+            # a looped bag or a restarted camera: start afresh rather than skip every
+            # frame until the stamps catch up, and never mix fragments across the jump
+            self.stats['resets_stamp_jump'] += 1
+            self._warn('stamp_jump', f'image stamp jumped back '
+                       f'{(self.last_stamp_ns - stamp_ns) * 1e-9:.3f} s: lamp tracks reset')
+            self.tracker.reset()
+            self.pending.clear()
+            self.last_stamp_ns = None
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             self.stats['skipped_out_of_order'] += 1
             self._warn('out_of_order', f'image stamp {stamp_ns} ns is not after the last '
@@ -277,6 +294,11 @@ def main(args=None):
     code = 0
     try:
         node = VlcDecoderNode()
+        # Start-up objects (imports, lamp map) out of the garbage collector's reach: a
+        # full collection then costs well under 1 ms instead of ~50 ms on some frame
+        # (measured in spot_locator, docs/arch/spot_locator.md "Per-frame tail").
+        gc.collect()
+        gc.freeze()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -39,7 +39,7 @@ def context(ros_env):
 def run_node(context, params, max_wall_s=60.0):
     """Run the node until duration_s elapses; return everything a subscriber received."""
     # The core renderer the tests compare with uses the paper's 50 us / protocol's
-    # 10 kchip/s; the node's defaults (20 kchip/s, 25 us) are checked separately.
+    # 10 kchip/s; the node's defaults (21.15 kchip/s, 25 us) are checked separately.
     params = {'wait_for_subscribers': 1, 'exposure_s': 50e-6, 'chip_rate_hz': 10_000.0,
               **params}
     node = StereoCameraNode(context=context, parameter_overrides=[

@@ -17,9 +17,9 @@ import numpy as np
 from .core.lamp_map import LampMap, resolve_lamp_map_path
 from .core.renderer import RendererConfig, StereoRenderer
 
-# The graph's camera timing (config/stereo_camera_node.yaml, ARCHITECTURE.md): 20 kchip/s
+# The graph's camera timing (config/stereo_camera_node.yaml, ARCHITECTURE.md): 21.15 kchip/s
 # lamps seen with a 25 µs row exposure, not the core's paper/protocol defaults.
-DEMO_CONFIG = RendererConfig(chip_rate_hz=20_000.0, exposure_s=25e-6)
+DEMO_CONFIG = RendererConfig(chip_rate_hz=21_150.0, exposure_s=25e-6)
 from .core.trajectory import MotionProfile, Trajectory, Vibration
 
 matplotlib.use('Agg')

@@ -100,7 +100,7 @@ NODE_PARAMETERS = (
     ('row_time_s', 30e-6, _desc('Rolling-shutter line time: row r starts exposing at '
                                 't0 + r*row_time_s, s.', 1e-6, 1e-3)),
     ('exposure_s', 25e-6, _desc('Exposure time of each row, s.', 1e-6, 0.1)),
-    ('chip_rate_hz', 20000.0, _desc('Nominal VLC chip rate, chips/s (VLC_PROTOCOL.md).',
+    ('chip_rate_hz', 21150.0, _desc('Nominal VLC chip rate, chips/s (VLC_PROTOCOL.md).',
                                     2000.0, 40000.0)),
     ('off_level', 0.05, _desc('Lamp output in an "off" chip, fraction of "on".', 0.0, 0.99)),
     ('lamp_clock_ppm', 100.0, _desc('Each lamp chip-rate error is uniform in +-this, ppm.',

@@ -14,6 +14,7 @@ import numpy as np
 from . import centres as cm
 from . import deblur as db
 from . import eccentricity as ecc
+from . import synth
 from .detection import DetectConfig, detect_spots
 from .matching import MatchConfig, SpotSummary, match_spots
 
@@ -217,6 +218,54 @@ class SpotLocator:
                 pairs.append(pair)
         return FrameResult(pairs, len(sl), len(sr), len(um_l), len(um_r), rejected, failed,
                            time.perf_counter() - t_start)
+
+    def warm_up(self):
+        """Run every per-frame code path once on a synthetic striped stereo pair.
+
+        The first call of many library functions is slow (OpenCV's contour and
+        morphology kernels, LAPACK, scipy's assignment solver, scikit-image's lazily
+        imported ``measure`` and ``restoration`` submodules, numpy's ufunc loops for each
+        dtype): tens of milliseconds that would otherwise fall on the first frames, or
+        on the first frame that takes a rare path (the circularity fallback, a Wiener
+        restoration) in the middle of a run. A node calls this before it subscribes.
+
+        Returns
+        -------
+        int
+            Pairs found in the synthetic frame at speed 0 and in motion (≥ 2 when the
+            whole pipeline ran).
+        """
+        g, cfg = self.geom, self.cfg
+        K = g.K
+        # a lamp 3 m in front of the left camera, 0.2 m up and left, facing the
+        # configured normal: tens of rows tall, so the conic normal is measured too
+        centre = np.array([-0.2, -0.2, 3.0])
+        shape = (g.height, g.width)
+        exposure = synth.Exposure(row_time_s=cfg.row_time_s, exposure_s=cfg.exposure_s,
+                                  n_time=1)
+        def stripes(t_s):
+            # on for 4 rows, off (5 %) for 4 rows
+            return np.where(np.floor(np.asarray(t_s) / (4.0 * cfg.row_time_s)) % 2 == 0,
+                            1.0, 0.05)
+
+        images = []
+        for offset in (0.0, g.baseline_m):
+            c = centre - np.array([offset, 0.0, 0.0])
+            spot = synth.render_disc(shape, K, c, self.normal_cam, cfg.lamp_radius_m,
+                                     radiance=150.0, supersample=2, exposure=exposure,
+                                     level=stripes)
+            images.append(np.clip(spot + 4.0, 0, 255).astype(np.uint8))
+        found = 0
+        # standing, then at 20 m/s (the rolling-shutter model and, if on, Wiener)
+        for speed_mps in (0.0, 20.0):
+            found += len(self.process(images[0], images[1], speed_mps).pairs)
+        regions = detect_spots(images[0], cfg.detect)
+        if regions:
+            r = regions[0]
+            self._alpha(r, r.roi)
+            self.measure(r, db.wiener_deblur(r.roi, db.motion_psf((1.0, 0.0)),
+                                             cfg.wiener_balance))
+        return found
 
     def measure(self, region, roi, method=None):
         """Centre of one detected spot with ``method`` (default: the configured one).

@@ -31,6 +31,7 @@ class PlayerConfig:
     fast_pause_s: float = 0.001
     delay_topics: tuple[str, ...] = ()
     topic_delay_s: float = 0.0
+    clock_rate_hz: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.bag:
@@ -38,7 +39,7 @@ class PlayerConfig:
         if not self.rate >= 0:
             raise ValueError('rate must be >= 0 (0 = as fast as subscribers keep up)')
         for name in ('start_offset_s', 'duration_s', 'start_delay_s', 'fast_pause_s',
-                     'topic_delay_s'):
+                     'topic_delay_s', 'clock_rate_hz'):
             if not getattr(self, name) >= 0:
                 raise ValueError(f'{name} must be >= 0')
         if self.default_depth < 1:

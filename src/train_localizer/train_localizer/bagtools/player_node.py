@@ -119,6 +119,9 @@ class BagPlayerNode(Node):
             topic_delay_s=declare(self, 'topic_delay_s', d['topic_delay_s'].default,
                                   'Delay of delay_topics (e.g. a rolling-shutter readout) [s]',
                                   float_range=(0.0, 10.0)),
+            clock_rate_hz=declare(self, 'clock_rate_hz', d['clock_rate_hz'].default,
+                                  '/clock at most this often (bag time) [Hz]; 0 = before '
+                                  'every message', float_range=(0.0, 10000.0)),
         )
 
     def _play(self) -> None:
@@ -153,6 +156,7 @@ class BagPlayerNode(Node):
         start, stop = self._window
         schedule.restart(start, time.monotonic())
         last_clock = -1
+        clock_period_ns = round(1e9 / cfg.clock_rate_hz) if cfg.clock_rate_hz > 0 else 1
         messages = delayed(iter_raw(cfg.bag, list(self._topic_publishers), start, stop),
                            cfg.delay_topics, round(cfg.topic_delay_s * 1e9))
         for topic, _, timestamp, data in messages:
@@ -161,7 +165,7 @@ class BagPlayerNode(Node):
                 return
             if self._stop.is_set():
                 return
-            if self._clock_pub is not None and timestamp > last_clock:
+            if self._clock_pub is not None and timestamp >= last_clock + clock_period_ns:
                 last_clock = timestamp
                 self._clock_pub.publish(Clock(clock=Time(sec=timestamp // 1_000_000_000,
                                                          nanosec=timestamp % 1_000_000_000)))

@@ -8,8 +8,10 @@ Examples::
     run_evaluation --protocol full --lanes 2 --rescore --out out/eval   # score again
     run_evaluation --protocol companions --lanes 1 --out out/companions   # issue 7
     run_evaluation --protocol none --forged --out out/forged
+    run_evaluation --protocol none --latency --out out/latency       # issue 5's latency
 """
 import argparse
+import json
 import logging
 import os
 import pathlib
@@ -20,6 +22,7 @@ from vlc_stereo_camera.core.lamp_map import LampMap, default_lamp_map_path
 
 from . import ablations, companions, report, scenarios
 from .graph_runner import SPAWN_MODES
+from .sample_bag import record_sample_bag, sample_scenario
 
 
 def _progress(done, total, name, started):
@@ -33,6 +36,31 @@ def _progress(done, total, name, started):
     if done == total:
         sys.stderr.write('\n')
     sys.stderr.flush()
+
+
+# Latency bags: 8 s of sensors (240 stereo frames, 3200 IMU samples) per speed.
+LATENCY_SPEEDS_KMH = (60, 120)
+LATENCY_BAG_S = 8.0
+
+
+def latency_replays(out, rescore=False):
+    """Replay scenarios at real-time factor 1 of the latency sensor bags, recording the
+    bags first (rig and recorder only, slowed to 0.3 so no frame is lost) where missing;
+    a lean recording (no 400 Hz IMU topics)."""
+    replays = []
+    for speed in LATENCY_SPEEDS_KMH:
+        bag = out / 'latency_bags' / f'sensors_{speed:03d}kmh'
+        if not (bag / 'metadata.yaml').exists() and not rescore:
+            scenario = sample_scenario(bag.name, float(speed), duration_s=LATENCY_BAG_S,
+                                       realtime_factor=0.3)
+            # uncompressed: the player would otherwise decompress a zstd chunk of several
+            # frames at once, a CPU burst on the cores the measured nodes share
+            scenario.node_params['bag_recorder']['compression'] = 'none'
+            problems = record_sample_bag(bag, scenario)
+            for problem in problems:
+                logging.getLogger(__name__).warning('%s: %s', bag, problem)
+        replays.append(scenarios.replay_scenario(bag, 1.0, lean_recording=True))
+    return replays
 
 
 def build_scenarios(args):
@@ -108,6 +136,12 @@ def main(argv=None):
     parser.add_argument('--companions-docs', nargs='+', default=[],
                         help='also write the companion, outage and forged-lamp tables between '
                              'the companions markers of these Markdown files')
+    parser.add_argument('--latency', action='store_true',
+                        help='also measure latency as on the train: record sensor bags at '
+                             f'{"/".join(map(str, LATENCY_SPEEDS_KMH))} km/h (kept in '
+                             'OUT/latency_bags), then replay each at real-time factor 1 '
+                             'through the processing nodes, one at a time, after everything '
+                             'else (the rig\'s renderer is not on the cores)')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -152,6 +186,16 @@ def main(argv=None):
         results = scenarios.run_protocols(groups, out, lamp_map, lanes=args.lanes,
                                           spawn=args.spawn, progress=progress,
                                           rescore=args.rescore, retries=args.retries)
+        latency_results = []
+        if args.latency:
+            # alone on the machine, at real time: no parallel lane, no slower rerun, a
+            # fresh lane each (a lane slows down after a run in which a node fell behind)
+            for scenario in latency_replays(out, args.rescore):
+                group = f'latency/{scenario.name}'
+                latency_results += scenarios.run_protocols(
+                    {group: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
+                    rescore=args.rescore, retries=0)[group]
+            total += len(latency_results)
     except KeyboardInterrupt:
         print('\ninterrupted: the running scenarios were stopped', file=sys.stderr)
         sys.stderr.flush()
@@ -159,6 +203,7 @@ def main(argv=None):
         # Every node is stopped; skip the interpreter's teardown, in which rclpy's
         # C++ signal-handler thread aborts after an interrupt.
         os._exit(130)
+    replayed = list(results.get('replay') or []) + latency_results
     static_results, dynamic_results = results['static'], results['dynamic']
     ablation = None
     if args.ablations:
@@ -169,7 +214,7 @@ def main(argv=None):
                                title=(f'Accuracy ({args.protocol} protocol)'
                                       if args.protocol not in ('none', 'companions')
                                       else 'Evaluation'),
-                               ablations=ablation, replays=results.get('replay'))
+                               ablations=ablation, replays=replayed)
     if kinds:
         added = companions.append_to_report(out, results.get('companions', ()),
                                             results.get('outage', ()), results.get('forged', ()))
@@ -180,11 +225,18 @@ def main(argv=None):
             print(f'{path}: companions section rewritten')
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
+    command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
+    wall = time.monotonic() - started
+    if not args.rescore:
+        # which runs made the bags, and how long each took (the README quotes it)
+        with open(out / report.RUN_LOG, 'a', encoding='utf-8') as log:
+            log.write(json.dumps({'command': command, 'scenarios': total,
+                                  'lanes': args.lanes, 'wall_s': round(wall, 1),
+                                  'cpus': os.cpu_count(),
+                                  'finished': time.strftime('%Y-%m-%d %H:%M')}) + '\n')
     if args.readme:
-        command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
         report.update_markdown(pathlib.Path(args.readme), out, command)
         print(f'{args.readme}: evaluation section rewritten')
-    wall = time.monotonic() - started
     how = 'rescored' if args.rescore else f'on {args.lanes} lane(s)'
     print(f'{total} scenarios {how}: total wall time {wall:.0f} s ({wall / 60:.1f} min)')
     return 0

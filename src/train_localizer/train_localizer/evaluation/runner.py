@@ -121,6 +121,8 @@ class Lane:
         self.domain_id = 120 + (self.domain_id - 120 + 37) % 113
 
 
+# /clock from the player as the camera's (the latency figures interpolate between ticks)
+PLAYER_CLOCK_HZ = 100.0
 # Images (and their camera_info) exist only once the camera has read out the last row
 # (latency.READOUT_S after the first row's exposure start).
 FRAME_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
@@ -209,8 +211,11 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
         for topic, count in scenario.extra_subscriptions.items():
             required[topic] = required.get(topic, 0) + count
         if replay:
-            # the player's /clock and ground truth come from the bag, not from a rig
-            required = {t: n for t, n in required.items()
+            # the player's /clock and ground truth come from the bag, not from a rig; the
+            # recorder subscribes to a played topic only once the player offers it (during
+            # the player's start delay), so it is not awaited there
+            required = {t: n - (t in recorded_topics and t in REPLAYED_TOPICS)
+                        for t, n in required.items()
                         if t not in ('/clock', '/ground_truth/pose', '/ground_truth/spots')}
         else:
             # decoder, spot locator, the probe's gate (, the recorder)
@@ -238,6 +243,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                   'topics': list(REPLAYED_TOPICS),
                                   'delay_topics': list(FRAME_TOPICS),
                                   'topic_delay_s': delay,
+                                  'clock_rate_hz': PLAYER_CLOCK_HZ,
                                   'wait_for_subscriptions': True},
                         [graph.config_file(PLAYER[0], 'bag_player.yaml')])
             mark('sim_started')

@@ -57,7 +57,8 @@ class Scenario:
     with ``node_params[executable]``; ``extra_subscriptions`` (``{topic: count}``) are
     theirs, awaited before simulated time starts; ``extra_topics`` are recorded too.
     ``kind`` (``companions``, ``outage``, ``forged``; '' = the paper's protocols) selects
-    the scoring, ``kind_params`` its geometry (:mod:`.companions`).
+    the scoring, ``kind_params`` its geometry (:mod:`.companions`). ``lean_recording``
+    leaves the 400 Hz IMU topics out of the bag (latency replays).
     """
 
     name: str
@@ -78,6 +79,7 @@ class Scenario:
     extra_topics: list = field(default_factory=list)
     kind: str = ''
     kind_params: dict = field(default_factory=dict)
+    lean_recording: bool = False
 
     @property
     def is_replay(self):
@@ -91,8 +93,13 @@ class Scenario:
         if not self.run_processing:
             return list(dict.fromkeys(SENSOR_TOPICS + GROUND_TRUTH_TOPICS))
         topics = list(RECORDED_TOPICS)
+        if self.lean_recording:
+            # latency runs: the recorder is measurement overhead that the train does not
+            # carry; the 400 Hz IMU topics would cost it most of a core
+            topics.remove('/imu/data')
         if self.is_replay:
-            topics += ['/ground_truth/spots', '/imu/data_raw']
+            topics += ['/ground_truth/spots'] + ([] if self.lean_recording
+                                                 else ['/imu/data_raw'])
         elif not self.is_static:
             topics += DYNAMIC_TOPICS
         if self.record_sensors:
@@ -176,12 +183,13 @@ def score_dynamic(run, scenario, lamp_map, heading_plot=False):
     return out
 
 
-def replay_scenario(bag, realtime_factor=1.0):
+def replay_scenario(bag, realtime_factor=1.0, lean_recording=False):
     """A scenario that replays the sensor bag ``bag`` through the processing nodes."""
     start, end = bag_time_range(bag)
     bag = pathlib.Path(bag)
     return Scenario(name=f'replay_{bag.name}', replay_bag=str(bag),
-                    duration_s=max(end - start, 0) * 1e-9, realtime_factor=realtime_factor)
+                    duration_s=max(end - start, 0) * 1e-9, realtime_factor=realtime_factor,
+                    lean_recording=lean_recording)
 
 
 def score_replay(run, scenario, lamp_map):

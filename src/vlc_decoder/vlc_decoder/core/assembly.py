@@ -15,17 +15,22 @@ A lamp whose clock is off by more than the tolerance shows up as fragments whose
 do not fall where the clock predicts. The assembler then aligns by content: a fragment
 that shows a header fixes its own packet phase; two such fragments close in time give
 the lamp's rate (the packet count between them is unique within the ±3 % search span),
-after which the clock is restarted at that rate and assembly proceeds as above.
+after which the clock is restarted at that rate and assembly proceeds as above. Until
+then fragments are aligned by their overlaps: each is read on its own edges and placed
+where its chips agree with the fold of the others at one cyclic shift only
+(:meth:`PacketAssembler._overlap_decision`); the packet start is then located by
+structure as on the clock. A decision is refused when it contradicts the track's first
+fragments (the track is the lamp it started on) or, by overlaps, any fragment it holds.
 """
 from dataclasses import dataclass
 import logging
 
 import numpy as np
 
-from .chips import (OFF, ON, STATUS_INCONSISTENT, STATUS_OK, chip_states, decide_fold,
-                    find_crossings, fold_votes, header_positions, packet_states,
-                    recover_clock, slice_chips)
-from .protocol import PACKET_CHIPS
+from .chips import (MIN_CONTRADICTIONS, OFF, ON, STATUS_INCONSISTENT, STATUS_OK,
+                    chip_states, decide_fold, find_crossings, fold_votes, header_positions,
+                    known_bits, packet_states, recover_clock, slice_chips)
+from .protocol import PACKET_CHIPS, encode_packet
 
 LOG = logging.getLogger(__name__)
 
@@ -43,6 +48,19 @@ REREAD_CHIPS = 0.05
 # this many fragments in a row off the clock's grid restart the clock on them (a bad
 # first fragment) or, if they disagree among themselves too, mean an off-spec lamp clock
 MISFITS_TO_RESTART = 3
+# alignment by overlap: a fragment's own chips are placed in a fold at the one cyclic
+# shift where they agree with the fold's on at least this many chips, while every other
+# shift has at least MIN_CONTRADICTIONS disagreements (periodic Manchester runs make
+# several shifts agree: then the fragment waits for more of the fold)
+MIN_OVERLAP_CHIPS = 8
+# consecutive fragments off the clock's grid after which alignment by overlap is tried
+# while the clock still stands
+OVERLAP_AFTER_MISFITS = 2
+# the first fragments of a track, which a decision must not outvote (the track is the
+# lamp it started on)
+FOUNDERS = 2
+# fragments kept for alignment by overlap (each new one is matched against their fold)
+MAX_CONTENT_FRAGMENTS = 30
 
 
 @dataclass(eq=False)
@@ -63,12 +81,44 @@ class Fragment:
     own_rate_hz: float = 0.0
     on_clock: bool = True        # its edges fit the lamp's clock (else set aside)
     votes: tuple = None          # (n_on, n_off, sum_vw, sum_w), each (54,)
+    own: dict = None             # its chips read on its own edges (alignment by overlap)
     sighted: frozenset = frozenset()
     read_at: float = np.nan      # clock position (chips) of mid_s when the votes were read
 
     @property
     def mid_s(self):
         return 0.5 * (self.t_s[0] + self.t_s[-1])
+
+
+def overlap_contradictions(states, fold):
+    """Disagreements and overlap of a chip sequence with a fold at every cyclic shift.
+
+    Parameters
+    ----------
+    states : (K,) ON/OFF/UNKNOWN chip reads of one fragment
+    fold : (54,) ON/OFF/UNKNOWN/CONFLICT folded packet chips (any origin)
+
+    Returns
+    -------
+    contradictions, overlap : (54,) int, for chip j of ``states`` at fold index
+    (j + shift) % 54: reads opposite to the fold's, and reads where both are decided
+    """
+    idx = (np.arange(PACKET_CHIPS)[:, None] + np.arange(len(states))[None, :]) % PACKET_CHIPS
+    f = fold[idx]
+    both = ((f == ON) | (f == OFF)) & ((states == ON) | (states == OFF))[None, :]
+    return (np.count_nonzero(both & (f != states[None, :]), axis=1),
+            np.count_nonzero(both, axis=1))
+
+
+def unique_shift(contradictions, overlap):
+    """The one shift where a fragment fits a fold (see MIN_OVERLAP_CHIPS), or None."""
+    fits = (contradictions == 0) & (overlap >= MIN_OVERLAP_CHIPS)
+    if np.count_nonzero(fits) != 1:
+        return None
+    shift = int(np.argmax(fits))
+    if np.delete(contradictions, shift).min() < MIN_CONTRADICTIONS:
+        return None
+    return shift
 
 
 class ChipClock:
@@ -131,9 +181,17 @@ class PacketAssembler:
         self.uid = None
         self.status = None
         self.bits_known = 0
+        # data bits read once the packet start is located (word UID << 8 | CRC, MSB
+        # first, and the mask of the known bits): what a partial packet says, to be
+        # matched against the lamp a map predicts, never a UID
+        self.data_word = 0
+        self.data_mask = 0
         self.chips_seen = 0
         self.contradictions = 0
         self.misfits = 0
+        self.fold = None             # (54,) packet chips on the clock's fold
+        self.content_fold = None     # (54,) packet chips of the fragments placed by overlap
+        self.placed = {}             # fragment -> its shift in the content fold
 
     @property
     def state(self):
@@ -142,47 +200,77 @@ class PacketAssembler:
         return PARTIAL if self.chips_seen > 0 else SEARCHING
 
     # ------------------------------------------------------------------ input
-    def add(self, stamp_ns, rows, level, weight):
-        """Add one frame's fragment: image rows (R,), levels (R,), weights (R,)."""
+    def _fragment(self, stamp_ns, rows, level, weight):
         cfg = self.cfg
         t = ((int(stamp_ns) - self.origin_ns) * 1e-9
              + np.asarray(rows, float) * cfg.row_time_s + 0.5 * cfg.exposure_s)
         level = np.asarray(level, float)
         weight = np.asarray(weight, float)
         if len(t) == 0:
-            return
+            return None
         tc, wc = find_crossings(t[None], level[None], weight[None])
         keep = wc[0] > 0
-        frag = Fragment(t, level, weight, tc[0][keep], wc[0][keep])
+        return Fragment(t, level, weight, tc[0][keep], wc[0][keep])
+
+    def add(self, stamp_ns, rows, level, weight):
+        """Add one frame's fragment: image rows (R,), levels (R,), weights (R,)."""
+        cfg = self.cfg
+        frag = self._fragment(stamp_ns, rows, level, weight)
+        if frag is None:
+            return
         self.fragments.append(frag)
         if len(self.fragments) > cfg.max_fragments:
             self.fragments.pop(0)
             self._rebuild_clock()
         else:
             self._place(frag)
-        self._assemble()
+        if self.uid is None:
+            # once confirmed, the clock still follows the lamp (its grid and the packet
+            # it places check the spots offered to the track) but nothing is left to
+            # decide
+            self._assemble()
 
-    def accepts(self, stamp_ns, rows, level, weight):
-        """Whether a new fragment's chip edges fall on this lamp's chip grid.
+    def accepts(self, stamp_ns, rows, level, weight, tight=False):
+        """Whether a new spot's stripes can be this lamp's.
 
-        False only when the clock is established (fitted on several frames, not in
-        content mode) and the fragment's edges are clearly off it: then the spot is
-        another lamp. Without a clock, or without edges, there is no evidence against.
+        A ``tight`` geometric match (the track seen in the last frame, the spot close to
+        its prediction) is this lamp unless the lamp is confirmed and the spot is off its
+        clock's grid and no cyclic shift of the spot's own chips agrees with its packet.
+        Otherwise the spot's edges must
+        fall on the chip grid of a clock fitted on several frames and, once the fold
+        holds ``MIN_OVERLAP_CHIPS`` decided chips, its chips must agree with them where
+        the clock places them; without such a clock only an unconfirmed track may take
+        it. Content alone never carries a track to a spot far from it: a spot of another
+        lamp of the line may show just the header and line bits that they all share.
+        Spots without edges are accepted.
         """
-        if self.clock is None or self.content_mode or self.clock.frames < 2:
+        frag = self._fragment(stamp_ns, rows, level, weight)
+        if frag is None or len(frag.edges_s) < 2:
             return True
-        cfg = self.cfg
-        t = ((int(stamp_ns) - self.origin_ns) * 1e-9
-             + np.asarray(rows, float) * cfg.row_time_s + 0.5 * cfg.exposure_s)
-        tc, wc = find_crossings(t[None], np.asarray(level, float)[None],
-                                np.asarray(weight, float)[None])
-        keep = wc[0] > 0
-        if np.count_nonzero(keep) < 2:
+        if tight and self.uid is None:
             return True
-        x = self.clock.position(tc[0][keep])
-        resid = x - np.round(x)
-        phase = np.angle(np.sum(wc[0][keep] * np.exp(2j * np.pi * resid))) / (2 * np.pi)
-        return abs(phase) <= PHASE_TOLERANCE_CHIPS
+        clocked = (self.clock is not None and not self.content_mode
+                   and self.clock.frames >= 2)
+        fold = self.fold
+        if clocked and abs(self._phase_error(frag)) <= PHASE_TOLERANCE_CHIPS:
+            if tight or fold is None or np.count_nonzero((fold == ON) | (fold == OFF)) \
+                    < MIN_OVERLAP_CHIPS:
+                return True
+            n0, states, _, _ = self._read([frag], self.clock.t_b, self.clock.f)
+            pos = (n0[0] + np.arange(states.shape[1])) % PACKET_CHIPS
+            read = (states[0] == ON) | (states[0] == OFF)
+            decided = (fold[pos] == ON) | (fold[pos] == OFF)
+            if np.count_nonzero(read & decided & (states[0] != fold[pos])) \
+                    < MIN_CONTRADICTIONS:
+                return True
+        if not tight:
+            # no clock, or off its grid, or against its fold: geometry alone may extend
+            # a lamp still being read, never carry a confirmed UID
+            return not clocked and self.uid is None
+        own = self._own_read(frag)['states']
+        packet = np.where(encode_packet(self.uid) == 1, ON, OFF).astype(np.int8)
+        contradictions, _ = overlap_contradictions(own, packet)
+        return contradictions.min() < MIN_CONTRADICTIONS
 
     # ------------------------------------------------------------------ clock
     def _start_clock(self, frag, rate_hz, rate_sigma_hz):
@@ -270,6 +358,9 @@ class PacketAssembler:
         n0, value, weight = slice_chips(t, y, w, np.broadcast_to(t_b, (count,)).astype(float),
                                         np.broadcast_to(rate, (count,)).astype(float),
                                         cfg.exposure_s, k)
+        # no noise margin here (unlike a single profile's decision): a noisy fragment's
+        # reads are outvoted or conflict in the fold, and its conflicts are what stops
+        # a few clean spots of another lamp from deciding the packet alone
         states = chip_states(value, weight, cfg.chip_margin, cfg.min_chip_weight)
         return n0, states, value, weight
 
@@ -292,41 +383,104 @@ class PacketAssembler:
     def _assemble(self):
         if self.content_mode:
             self._content_alignment()
-        if self.clock is None or self.content_mode:
+        if self.content_mode:
+            self.fold = None
+            self._apply(self._overlap_decision())
+            return
+        if self.clock is None:
             self.status = None
-            self.bits_known = 0
+            self.bits_known = self.data_word = self.data_mask = 0
             return
         self._update_votes()
         used = [f for f in self.fragments if f.on_clock and f.votes is not None]
         if not used:
             return
-        n_on, n_off, sum_vw, sum_w = (np.sum([f.votes[j] for f in used], axis=0)
-                                      for j in range(4))
-        fold = packet_states(n_on[None], n_off[None], sum_vw[None], sum_w[None],
-                             self.cfg.chip_margin, self.cfg.min_chip_weight)[0]
+        fold = self._clock_fold(used)
         sighted = frozenset().union(*(f.sighted for f in used))
         if len(sighted) > 1:
             # fragments showing a header on their own put it at different places: the
             # clock does not hold for this lamp
             LOG.debug('header sightings disagree on the packet phase: aligning by content')
             self.content_mode = True
-            self._content_alignment()
-            self.status = None
-            self.bits_known = 0
+            self.fold = None
+            self._apply(self._overlap_decision())
             return
-        self._decide(fold, sighted)
+        self.fold = fold
+        outcomes = [self._decide(fold, sighted)]
+        if outcomes[0]['uid'] is not None and self._outvoted(used[:FOUNDERS], outcomes[0]):
+            outcomes[0].update(status=STATUS_INCONSISTENT, uid=None)
+        if outcomes[0]['uid'] is None and self.misfits >= OVERLAP_AFTER_MISFITS:
+            # the latest fragments are off the clock's grid (a lamp clock drifting
+            # off-spec, before it is declared so): they can still be placed by their
+            # overlaps. One misfit alone is more likely another lamp's spot. The
+            # decision must then place the misfits that asked for it.
+            overlap = self._overlap_decision()
+            misfits = [f for f in self.fragments if len(f.edges_s)][-self.misfits:]
+            if not all(f in self.placed for f in misfits):
+                overlap.update(status=STATUS_INCONSISTENT, uid=None)
+            outcomes.append(overlap)
+        self._apply(*outcomes)
+        if self.uid is not None and outcomes[0]['uid'] == self.uid:
+            # the whole packet where the clock places it: what later spots must show
+            packet = np.where(encode_packet(self.uid) == 1, ON, OFF).astype(np.int8)
+            self.fold = np.roll(packet, outcomes[0]['origin'])
+
+    @staticmethod
+    def _outvoted(used, outcome):
+        """Whether the decided packet overrides one of ``used`` fragments' reads in two
+        places.
+
+        Applied to the track's first fragments: a track is the lamp it started on. The
+        fold's majority vote tolerates a misread and outvotes the odd spot of another
+        lamp taken later; but a few clean spots of a neighbouring lamp that landed on
+        the clock's grid can also outvote the lamp's own noisy reads, and then the
+        decision contradicts the fragments the track was founded on.
+        """
+        packet = np.where(encode_packet(outcome['uid']) == 1, ON, OFF).astype(np.int8)
+        in_fold = np.roll(packet, outcome['origin'])
+        for frag in used:
+            n_on, n_off = frag.votes[0], frag.votes[1]
+            read = np.where(n_on > n_off, ON, np.where(n_off > n_on, OFF, 0))
+            if np.count_nonzero((read != 0) & (read != in_fold)) >= MIN_CONTRADICTIONS:
+                return True
+        return False
+
+    def _clock_fold(self, used):
+        """Packet chips from the votes of ``used`` fragments on the clock's fold."""
+        n_on, n_off, sum_vw, sum_w = (np.sum([f.votes[j] for f in used], axis=0)
+                                      for j in range(4))
+        return packet_states(n_on[None], n_off[None], sum_vw[None], sum_w[None],
+                             self.cfg.chip_margin, self.cfg.min_chip_weight)[0]
 
     def _decide(self, fold, sighted):
-        """Locate the packet start in the fold and decide there (one CRC check)."""
-        self.chips_seen = int(np.count_nonzero((fold == ON) | (fold == OFF)))
+        """Locate the packet start in the fold and decide there (one CRC check).
+
+        Returns the outcome: status, bits_known, data word and mask, chips seen, and the
+        UID when the CRC confirmed it (else None).
+        """
+        out = {'status': None, 'bits': 0, 'word': 0, 'mask': 0, 'uid': None, 'origin': -1,
+               'chips': int(np.count_nonzero((fold == ON) | (fold == OFF)))}
         uid, status, bits, origin = decide_fold(fold[None])
-        self.status = int(status[0])
-        self.bits_known = int(bits[0])
+        out['status'], out['bits'], out['origin'] = int(status[0]), int(bits[0]), int(origin[0])
         if sighted and origin[0] >= 0 and int(origin[0]) not in sighted:
-            self.status = STATUS_INCONSISTENT
-            return
+            out['status'] = STATUS_INCONSISTENT
+            return out
+        if origin[0] >= 0 and status[0] != STATUS_INCONSISTENT:
+            word, mask = known_bits(np.roll(fold, -int(origin[0]))[None])
+            out['word'], out['mask'] = int(word[0]), int(mask[0])
         if status[0] == STATUS_OK:
-            self._confirm(int(uid[0]))
+            out['uid'] = int(uid[0])
+        return out
+
+    def _apply(self, *outcomes):
+        """Report the most complete of the fold decisions and confirm what the CRC did."""
+        best = max(outcomes, key=lambda o: (o['uid'] is not None, o['bits'], o['chips']))
+        self.status, self.bits_known = best['status'], best['bits']
+        self.data_word, self.data_mask = best['word'], best['mask']
+        self.chips_seen = best['chips']
+        for outcome in outcomes:
+            if outcome['uid'] is not None:
+                self._confirm(outcome['uid'])
 
     def _confirm(self, uid):
         if self.uid is None:
@@ -336,6 +490,103 @@ class PacketAssembler:
             LOG.warning('lamp track decoded UID %#06x after confirming %#06x', uid, self.uid)
 
     # ------------------------------------------------------------------ content mode
+    def _own_read(self, frag):
+        """``frag``'s chips read on its own edges (rate searched when it spans enough
+        chips): states, value, weight (K,) and the chip indices where it shows a
+        header. Cached on the fragment."""
+        if frag.own is None:
+            cfg = self.cfg
+            span = (frag.t_s[-1] - frag.t_s[0]) * cfg.chip_rate_hz
+            tolerance = cfg.rate_search_tolerance if span >= cfg.rate_search_min_chips else 0
+            t_b, f, _ = recover_clock(frag.edges_s[None], frag.edge_w[None], cfg.chip_rate_hz,
+                                      np.array([frag.mid_s]), tolerance)
+            _, states, value, weight = self._read([frag], t_b[0], f[0])
+            frag.own = {'states': states[0], 'value': value[0], 'weight': weight[0],
+                        'heads': np.flatnonzero(header_positions(states)[0])}
+        return frag.own
+
+    def _content_fold(self):
+        """Fold of the fragments placed by overlap."""
+        if not self.placed:
+            return np.zeros(PACKET_CHIPS, np.int8)
+        frags = list(self.placed)
+        k = max(len(f.own['states']) for f in frags)
+        states = np.zeros((len(frags), k), np.int8)
+        value = np.full((len(frags), k), 0.5)
+        weight = np.zeros((len(frags), k))
+        for i, frag in enumerate(frags):
+            n = len(frag.own['states'])
+            states[i, :n], value[i, :n], weight[i, :n] = (
+                frag.own['states'], frag.own['value'], frag.own['weight'])
+        shift = np.array([self.placed[f] for f in frags])
+        votes = [v.sum(axis=0) for v in fold_votes(states, value, weight, shift)]
+        return packet_states(*(v[None] for v in votes), self.cfg.chip_margin,
+                             self.cfg.min_chip_weight)[0]
+
+    def _overlap_decision(self):
+        """Align fragments by the overlaps of their own chips (off-spec lamp clock).
+
+        Without a clock the frame-to-frame packet phase is unknown, but every fragment's
+        chips can be read on its own edges. The fragment with the most chips anchors a
+        fold; every other one is placed at the one cyclic shift where its chips agree
+        with the fold (:func:`unique_shift`), which grows the fold, until no more fit.
+        The packet start is then located in that fold by the protocol's structure and
+        decided once, as on the clock (:meth:`_decide`).
+        """
+        candidates = [f for f in self.fragments[-MAX_CONTENT_FRAGMENTS:] if len(f.edges_s)]
+        for frag in candidates:
+            self._own_read(frag)
+        sizable = {f for f in candidates if np.count_nonzero(
+            (f.own['states'] == ON) | (f.own['states'] == OFF)) >= MIN_OVERLAP_CHIPS}
+        # the fragment with the most chips anchors the fold (the biggest overlaps)
+        candidates.sort(key=lambda f: -np.count_nonzero(
+            (f.own['states'] == ON) | (f.own['states'] == OFF)))
+        if not sizable:
+            self.placed = {}
+            return self._decide(np.zeros(PACKET_CHIPS, np.int8), frozenset())
+        self.placed = {candidates[0]: 0}
+        fold = self._content_fold()
+        grown = True
+        while grown:
+            grown = False
+            for frag in candidates:
+                if frag in self.placed:
+                    continue
+                shift = unique_shift(*overlap_contradictions(frag.own['states'], fold))
+                if shift is not None:
+                    self.placed[frag] = shift
+                    fold = self._content_fold()
+                    grown = True
+        self.content_fold = fold
+        sighted = frozenset(int(p + shift) % PACKET_CHIPS for frag, shift in self.placed.items()
+                            for p in frag.own['heads'])
+        # the fold must be the lamp of every fragment: one that disagrees with it at
+        # every shift (another lamp's spot taken by the track, or a misread) leaves the
+        # fold undecided, else a few foreign fragments agreeing among themselves would
+        # decide the foreign lamp's UID
+        foreign = any(
+            np.count_nonzero((f.own['states'] == ON) | (f.own['states'] == OFF))
+            >= MIN_OVERLAP_CHIPS
+            and overlap_contradictions(f.own['states'], fold)[0].min() >= MIN_CONTRADICTIONS
+            for f in candidates if f not in self.placed)
+        out = self._decide(fold, sighted)
+        if out['uid'] is not None and not foreign:
+            # the decided packet, now whole, must fit every fragment the track holds, and
+            # every placed one where it was placed (no fragment outvoted): fragments of
+            # a neighbouring lamp of the line share its header and line bits and can be
+            # placed by them; the lamp's own fragments then disagree with the packet
+            # where the lamp bits and the CRC differ
+            packet = np.where(encode_packet(out['uid']) == 1, ON, OFF).astype(np.int8)
+            in_fold = np.roll(packet, out['origin'])
+            foreign = any(
+                overlap_contradictions(f.own['states'], packet)[0].min() >= MIN_CONTRADICTIONS
+                for f in candidates) or any(
+                overlap_contradictions(f.own['states'], in_fold)[0][shift]
+                >= MIN_CONTRADICTIONS for f, shift in self.placed.items())
+        if len(sighted) > 1 or foreign:
+            out.update(status=STATUS_INCONSISTENT, bits=0, word=0, mask=0, uid=None)
+        return out
+
     def _own_starts(self, frag):
         """Packet-start times (s) of the headers ``frag`` shows on its own edges."""
         if frag.own_starts_s is not None and frag.own_rate_hz == self.rate_hz:

@@ -21,6 +21,11 @@ from .protocol import (CRC8_TABLE, DATA_BITS, HEADER_CHIPS, HEADER_LEN, PACKET_C
 OVERLAP_POWER = 4.0
 HEADER_SIGNS = (2 * HEADER_CHIPS.astype(np.int8) - 1)  # +1 on, -1 off
 
+# a chip's level must stand this many of its own noise σ from 0.5 to be read
+NOISE_SIGMAS = 3.0
+# fewest rows inside one chip that estimate a profile's level noise on their own
+MIN_NOISE_ROWS = 4
+
 # decision states of a folded packet chip
 UNKNOWN, ON, OFF, CONFLICT = 0, 1, -1, 2
 
@@ -164,9 +169,45 @@ def slice_chips(t_s, y, w, t_b, f, exposure_s, n_chips):
     return n0, value, total_w
 
 
-def chip_states(value, weight, margin, min_weight):
-    """Hard reads: ON (+1), OFF (−1) or UNKNOWN (0) per chip (same shape as ``value``)."""
+def level_noise(t_s, y, w, t_b, f, exposure_s):
+    """Robust σ of the normalised row levels of each profile (N,).
+
+    Rows whose exposure lies (almost) entirely inside one chip of the grid should read
+    0 or 1: their distances to the nearer of the two give σ by the MAD. With fewer than
+    ``MIN_NOISE_ROWS`` such rows every usable row is used, which overstates σ (rows
+    across a chip edge read in between): on the safe side.
+    """
+    x = (t_s - t_b[:, None]) * f[:, None]
+    half = 0.5 * exposure_s * f[:, None]
+    kc = np.floor(x)
+    alpha = (np.minimum(x + half, kc + 1) - np.maximum(x - half, kc)) / (2 * half)
+    usable = w >= 0.5
+    dist = np.abs(y - np.clip(np.round(y), 0.0, 1.0))
+    inside = usable & (alpha >= 0.9)
+    use = np.where((inside.sum(axis=1) >= MIN_NOISE_ROWS)[:, None], inside, usable)
+    count = use.sum(axis=1)
+    if dist.shape[1] == 0:
+        return np.full(len(y), 0.5)
+    ordered = np.sort(np.where(use, dist, np.inf), axis=1)
+    rows = np.arange(len(y))
+    upper = ordered[rows, np.maximum(count // 2, 0)]
+    lower = ordered[rows, np.maximum((count - 1) // 2, 0)]
+    # no usable row: no evidence of a clean profile, so a large σ
+    return np.where(count > 0, 1.4826 * 0.5 * (upper + lower), 0.5)
+
+
+def chip_states(value, weight, margin, min_weight, sigma=None):
+    """Hard reads: ON (+1), OFF (−1) or UNKNOWN (0) per chip (same shape as ``value``).
+
+    A chip is read when rows worth ``min_weight`` fully-inside exposures cover it and
+    its level is ``margin`` from 0.5, or ``NOISE_SIGMAS`` times its own noise
+    (``sigma`` (N,), the profile's row noise, over √weight) when that is larger: a
+    noisy profile reads only the chips its noise cannot have flipped.
+    """
     seen = weight >= min_weight
+    if sigma is not None:
+        margin = np.maximum(margin, NOISE_SIGMAS * np.asarray(sigma, float)[:, None]
+                            / np.sqrt(np.maximum(weight, min_weight)))
     on = seen & (value >= 0.5 + margin)
     off = seen & (value <= 0.5 - margin)
     return np.where(on, ON, np.where(off, OFF, UNKNOWN)).astype(np.int8)
@@ -207,18 +248,19 @@ def fold_votes(states, value, weight, shift, valid=None):
     return n_on, n_off, sum_vw, sum_w
 
 
-def packet_states(n_on, n_off, sum_vw, sum_w, margin, min_weight):
+def packet_states(n_on, n_off, sum_vw, sum_w, margin, min_weight, sigma=None):
     """Per packet chip: ON / OFF / UNKNOWN / CONFLICT from folded reads.
 
     A chip read by fragments is decided by a clear majority (winners ≥ 1 + 2·losers,
     else CONFLICT); a chip no fragment read outright falls back on the pooled soft
-    evidence of all its rows.
+    evidence of all its rows (held to the noise margin of ``sigma`` (N,), see
+    :func:`chip_states`).
     """
     major_on = n_on >= 1 + 2 * n_off
     major_off = n_off >= 1 + 2 * n_on
     read = (n_on + n_off) > 0
     pooled = np.where(sum_w > 0, sum_vw / np.where(sum_w > 0, sum_w, 1.0), 0.5)
-    soft = chip_states(pooled, sum_w, margin, min_weight)
+    soft = chip_states(pooled, sum_w, margin, min_weight, sigma)
     return np.where(read, np.where(major_on, ON, np.where(major_off, OFF, CONFLICT)),
                     soft).astype(np.int8)
 
@@ -250,6 +292,25 @@ def origin_contradictions(states):
     a, b = data[..., 0], data[..., 1]
     violations = np.count_nonzero(((a == ON) | (a == OFF)) & (a == b), axis=2)
     return against_header + violations
+
+
+def known_bits(states):
+    """The data word as read so far from packets whose header sits at chip 0.
+
+    A bit is known when one of its chips is read, neither is in conflict and a fully
+    read pair is Manchester. Returns word (N,) int64 (24 bits, MSB first: UID << 8 |
+    CRC, unknown bits 0) and mask (N,) int64 (1 where the bit is known).
+    """
+    n = states.shape[0]
+    data = states[:, HEADER_LEN:].reshape(n, DATA_BITS, 2)
+    a, b = data[:, :, 0], data[:, :, 1]
+    a_known = (a == ON) | (a == OFF)
+    b_known = (b == ON) | (b == OFF)
+    bad = (a == CONFLICT) | (b == CONFLICT) | (a_known & b_known & (a == b))
+    known = (a_known | b_known) & ~bad
+    bits = np.where(a_known, a == ON, b == OFF) & known
+    weights = np.int64(1) << np.arange(DATA_BITS - 1, -1, -1, dtype=np.int64)
+    return (bits * weights).sum(axis=1), (known * weights).sum(axis=1)
 
 
 def decide_packets(states):
@@ -349,7 +410,8 @@ def read_profiles(t_s, y, w, cfg, rate_hz=None, search_rate=None):
 
     Returns
     -------
-    dict with t_b (N,), f (N,), strength (N,), n0 (N,), value/weight/states (N, K)
+    dict with t_b (N,), f (N,), strength (N,), n0 (N,), value/weight/states (N, K),
+    sigma (N,) the row level noise (:func:`level_noise`)
     """
     n, r = y.shape
     rate = np.full(n, cfg.chip_rate_hz) if rate_hz is None else np.asarray(rate_hz, float)
@@ -373,9 +435,10 @@ def read_profiles(t_s, y, w, cfg, rate_hz=None, search_rate=None):
             tc[sel], wc[sel], rate[sel], t_mid[sel], cfg.rate_search_tolerance)
     k = profile_chip_count(r, cfg)
     n0, value, weight = slice_chips(t_s, y, w, t_b, f, cfg.exposure_s, k)
-    states = chip_states(value, weight, cfg.chip_margin, cfg.min_chip_weight)
+    sigma = level_noise(t_s, y, w, t_b, f, cfg.exposure_s)
+    states = chip_states(value, weight, cfg.chip_margin, cfg.min_chip_weight, sigma)
     return {'t_b': t_b, 'f': f, 'strength': strength, 'n0': n0, 'value': value,
-            'weight': weight, 'states': states}
+            'weight': weight, 'states': states, 'sigma': sigma}
 
 
 def decode_profiles(t_s, y, w, cfg, search_rate=None):
@@ -396,7 +459,7 @@ def decode_profiles(t_s, y, w, cfg, search_rate=None):
     n_on, n_off, sum_vw, sum_w = fold_votes(states, read['value'], read['weight'],
                                             read['n0'] % PACKET_CHIPS)
     folded = packet_states(n_on, n_off, sum_vw, sum_w, cfg.chip_margin,
-                           cfg.min_chip_weight)
+                           cfg.min_chip_weight, read['sigma'])
     uid, status, _, origin = decide_fold(folded)
     heads = header_positions(states)
     k = heads.shape[1]

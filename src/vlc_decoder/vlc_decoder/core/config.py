@@ -1,6 +1,10 @@
 """Typed configuration of the decoder core (filled once from the node's parameters)."""
 from dataclasses import dataclass
 
+import yaml
+
+SIGNAL_TIMING_KEYS = ('row_time_s', 'exposure_s', 'chip_rate_hz', 'off_level')
+
 
 @dataclass
 class DecoderConfig:
@@ -19,13 +23,18 @@ class DecoderConfig:
         covering the protocol's ±2 % driver mismatch, used for profiles spanning at
         least ``rate_search_min_chips``; ``clock_tolerance_ppm``: the lamp clock accuracy
         assumed when carrying a packet phase from frame to frame.
+    Optics
+        ``psf_sigma_px``: the lens blur (Gaussian σ of the point spread function's core,
+        px); the spot's row envelope is modelled with it.
     Detection
         threshold ``background + detect_threshold_sigma·σ`` but at least
         ``detect_min_contrast`` DN above it (or Otsu: ``use_otsu``, ``median_filter``),
         ``detect_min_area_px``, ``max_spots`` per image, ``border_margin_px``.
     Tracking
         ``track_gate_px`` association gate, ``track_max_missed_frames``,
-        ``max_fragments`` frames of stripes kept per lamp.
+        ``max_fragments`` frames of stripes kept per lamp; ``stamp_jump_reset_s``: a
+        frame stamped more than this before the previous one (a looped bag, a restarted
+        camera) resets every track, so fragments are never mixed across the jump.
     """
 
     row_time_s: float = 30e-6
@@ -33,10 +42,11 @@ class DecoderConfig:
     chip_rate_hz: float = 10_000.0
     off_level: float = 0.05
     chip_margin: float = 0.2
-    min_chip_weight: float = 0.6
+    min_chip_weight: float = 0.2
     rate_search_tolerance: float = 0.03
     rate_search_min_chips: float = 24.0
     clock_tolerance_ppm: float = 100.0
+    psf_sigma_px: float = 0.7
     # spot detection
     detect_threshold_sigma: float = 8.0
     detect_min_contrast: float = 20.0
@@ -48,6 +58,7 @@ class DecoderConfig:
     track_gate_px: float = 60.0
     track_max_missed_frames: int = 15
     max_fragments: int = 120
+    stamp_jump_reset_s: float = 0.05
     border_margin_px: int = 2
 
     def __post_init__(self):
@@ -55,6 +66,10 @@ class DecoderConfig:
             raise ValueError('row_time_s, exposure_s and chip_rate_hz must be positive')
         if not 0.0 <= self.off_level < 0.5:
             raise ValueError('off_level must be in [0, 0.5)')
+        if not self.stamp_jump_reset_s >= 0.0:
+            raise ValueError('stamp_jump_reset_s must be >= 0')
+        if not self.psf_sigma_px >= 0.0:
+            raise ValueError('psf_sigma_px must be >= 0')
         if not 0.0 < self.chip_margin < 0.5:
             raise ValueError('chip_margin must be in (0, 0.5)')
 
@@ -70,3 +85,15 @@ class DecoderConfig:
         data bit 0, whose first chip is off); the exposure shortens it by one exposure.
         """
         return 4.0 * self.rows_per_chip + 2.0
+
+
+def signal_timing_from_params_file(path):
+    """The signal timing of a ROS params file (``/**: ros__parameters:``).
+
+    Returns a dict with those of ``SIGNAL_TIMING_KEYS`` the file sets (floats), so
+    benchmarks and tests take the graph's timing from ``config/vlc_decoder_node.yaml``,
+    the one place it is written for the decoder, instead of repeating its numbers.
+    """
+    with open(path, encoding='utf-8') as stream:
+        params = yaml.safe_load(stream)['/**']['ros__parameters']
+    return {key: float(params[key]) for key in SIGNAL_TIMING_KEYS if key in params}

@@ -82,10 +82,29 @@ def _runs(mask):
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
+def _bridge(runs, max_gap):
+    """Join (start, end) runs separated by at most ``max_gap``."""
+    out = []
+    for start, end in runs:
+        if out and start - out[-1][1] <= max_gap:
+            out[-1][1] = end
+        else:
+            out.append([start, end])
+    return out
+
+
 def _merge_pieces(boxes, max_gap_rows, col_slack):
     """Union of boxes (r0, r1, c0, c1) whose columns overlap and rows nearly touch."""
     n = len(boxes)
-    parent = list(range(n))
+    if n < 2:
+        return [tuple(int(v) for v in b) for b in boxes]
+    b = np.asarray(boxes)
+    # pairwise tests at once (a striped spot gives one piece per bright stripe)
+    cols = (np.minimum(b[:, None, 3], b[None, :, 3]) - np.maximum(b[:, None, 2], b[None, :, 2])
+            + col_slack > 0)
+    gap = np.maximum(b[:, None, 0], b[None, :, 0]) - np.minimum(b[:, None, 1], b[None, :, 1])
+    linked = np.triu(cols & (gap <= max_gap_rows), 1)
+    parent = np.arange(n)
 
     def find(i):
         while parent[i] != i:
@@ -93,19 +112,12 @@ def _merge_pieces(boxes, max_gap_rows, col_slack):
             i = parent[i]
         return i
 
-    for i in range(n):
-        for j in range(i + 1, n):
-            a, b = boxes[i], boxes[j]
-            cols = min(a[3], b[3]) - max(a[2], b[2]) + col_slack > 0
-            gap = max(a[0], b[0]) - min(a[1], b[1])
-            if cols and gap <= max_gap_rows:
-                parent[find(i)] = find(j)
-    groups = {}
-    for i in range(n):
-        groups.setdefault(find(i), []).append(boxes[i])
+    for i, j in zip(*np.nonzero(linked)):
+        parent[find(i)] = find(j)
+    roots = np.array([find(i) for i in range(n)])
     merged = []
-    for members in groups.values():
-        arr = np.array(members)
+    for root in np.unique(roots):
+        arr = b[roots == root]
         merged.append((int(arr[:, 0].min()), int(arr[:, 1].max()), int(arr[:, 2].min()),
                        int(arr[:, 3].max())))
     return merged
@@ -127,13 +139,16 @@ def find_spots(image, cfg):
     level = int(min(np.floor(threshold), 254))
     # (numpy's uint8 max reductions are SIMD; OpenCV's cv2.reduce is ~50x slower here)
     row_max = src.max(axis=1)
+    gap = cfg.max_dark_gap_rows
     pieces = []
-    for r0, r1 in _runs(row_max > level):
+    # bands of bright rows, bridged across gaps no longer than a spot's dark stripes, so
+    # that a striped spot is one band rather than one per bright stripe
+    for r0, r1 in _bridge(_runs(row_max > level), gap):
         band = src[r0:r1]
         col_max = band.max(axis=0)
         for c0, c1 in _runs(col_max > level):
             on_rows = band[:, c0:c1].max(axis=1) > level
-            for a0, a1 in _runs(on_rows):
+            for a0, a1 in _bridge(_runs(on_rows), gap):
                 pieces.append((r0 + a0, r0 + a1, int(c0), int(c1)))
         if len(pieces) > 16 * cfg.max_spots:
             break
@@ -166,16 +181,99 @@ CAP_LO, CAP_HI, SHRINK_ROWS = 0.25, 0.65, 0.5
 # which lifts the relative "off" level, is still normalised to 0..1
 OFF_PERCENTILE, ON_PERCENTILE, OFF_CEILING = 10, 85, 0.3
 HALO_FRACTION = 0.025
+# rows read at least this high in the first pass are taken as fully inside an "on" chip
+ON_ROW_LEVEL = 0.85
+# refits of the envelope: each reads the rows under the latest fit, so "on" cap rows
+# that a too short first envelope inflated, or a too long one dimmed, are sorted out
+ENVELOPE_ITERATIONS = 2
 
 
-def _ellipse_shape(rows, top, bottom, sub=8):
+def _ellipse_shape(rows, top, bottom, blur_rows=0.0, sub=8):
     """Fraction of the widest chord that an ellipse spanning rows ``top..bottom``
-    (inclusive, edges half a row beyond) covers in each row, averaged over the row."""
+    (inclusive, edges half a row beyond) covers in each of the contiguous ``rows``,
+    averaged over the row, after a vertical Gaussian blur of ``blur_rows`` (σ, rows).
+
+    The lens spreads each instant's light before the row integrates it (the stripes stay
+    sharp, the envelope does not), so the disc's edge rows receive less than their chord
+    and the rows just outside some: without the blur the edge rows read too dark.
+    """
     centre = 0.5 * (top + bottom)
-    semi = 0.5 * (bottom - top + 1)
-    offs = (np.arange(sub) + 0.5) / sub - 0.5
-    z = (np.asarray(rows, float)[:, None] + offs[None, :] - centre) / semi
-    return np.sqrt(np.clip(1.0 - z * z, 0.0, None)).mean(axis=1)
+    semi = max(0.5 * (bottom - top + 1), 0.5)
+    pad = int(np.ceil(3.0 * blur_rows * sub))
+    n = len(rows)
+    y = rows[0] - 0.5 + (np.arange(n * sub + 2 * pad) - pad + 0.5) / sub
+    z = (y - centre) / semi
+    chord = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    if pad:
+        kernel = np.exp(-0.5 * (np.arange(-pad, pad + 1) / (blur_rows * sub)) ** 2)
+        chord = np.convolve(chord, kernel / kernel.sum(), mode='same')
+    return chord[pad:pad + n * sub].reshape(n, sub).mean(axis=1)
+
+
+def _normalise(s, shape, cfg):
+    """Levels (0 off, 1 on) of row sums ``s`` under the envelope ``shape``.
+
+    Returns (level, on, off) or None: "on" and "off" per unit chord are percentiles of
+    the body rows, so a saturated "on" is still normalised to 0..1.
+    """
+    body = shape >= 0.5 * shape.max()
+    if not np.any(body):
+        return None
+    ratio = np.sort(s[body] / shape[body])
+    # percentiles by linear interpolation (np.percentile's default), without its overhead
+    pos = np.array([ON_PERCENTILE, OFF_PERCENTILE]) * 0.01 * (len(ratio) - 1)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, len(ratio) - 1)
+    a_on, a_off = ratio[lo] + (pos - lo) * (ratio[hi] - ratio[lo])
+    if a_on <= 0:
+        return None
+    a_off = float(np.clip(a_off, cfg.off_level * a_on, OFF_CEILING * a_on))
+    level = np.divide(s, shape, out=np.full(len(s), a_off), where=shape > 0)
+    return (level - a_off) / (a_on - a_off), a_on, a_off
+
+
+def _fit_ellipse_rows(idx, s, level, reference):
+    """Centre and semi-axis (rows) of the disc from the row sums of its "on" rows.
+
+    A row fully inside an "on" chip sums to ``A·chord(r)`` and an ellipse's squared
+    chord is a parabola in r, so a least-squares parabola through the squared sums of
+    the rows read "on" gives the disc's vertical extent independently of the
+    stripes at its caps (the lit extent ends early when a cap chip is off and late when
+    the optics spill an "on" cap). ``reference``: (centre, semi-axis) of the lit extent,
+    patch rows; a fit far from it is rejected. Returns (centre, semi-axis) in patch rows,
+    or None when the "on" rows do not pin them down.
+    """
+    on = level > ON_ROW_LEVEL
+    if np.count_nonzero(on) < 4:
+        return None
+    r = idx[on].astype(float)
+    span = r[-1] - r[0]
+    if span < 0.4 * len(idx):
+        return None
+    mid = 0.5 * (r[0] + r[-1])
+    x = r - mid
+    q = s[on] ** 2
+    # least squares q ≈ c0 + c1·x + c2·x² by its normal equations (3×3)
+    x2 = x * x
+    p1, p2, p3, p4 = x.sum(), x2.sum(), x2 @ x, x2 @ x2
+    m = np.array([[len(x), p1, p2], [p1, p2, p3], [p2, p3, p4]])
+    rhs = np.array([q.sum(), q @ x, q @ x2])
+    try:
+        c0, c1, c2 = np.linalg.solve(m, rhs)
+    except np.linalg.LinAlgError:
+        return None
+    if c2 >= 0:
+        return None
+    centre = -c1 / (2 * c2)
+    top_value = c0 - c1 * c1 / (4 * c2)
+    if top_value <= 0:
+        return None
+    semi = float(np.sqrt(-top_value / c2))
+    ref_centre, ref_semi = reference
+    if not (abs(centre + mid - ref_centre) < 0.25 * ref_semi
+            and 0.75 * ref_semi < semi < 1.25 * ref_semi):
+        return None
+    return centre + mid, semi
 
 
 def _lit_extent(lit, core0, core1):
@@ -202,7 +300,10 @@ def spot_profile(image, box, background, noise_dn, cfg):
     (they are dim because they are short, not because the lamp is off), and rows beyond
     the disc are never read. For a spot cut by the left or right image border the chord
     is measured row by row instead (row sum over row peak on the lit rows, interpolated
-    across the dark ones). Rows are weighted by their chord, so the caps count less.
+    across the dark ones). Otherwise the ellipse is then refitted on the rows read "on"
+    (:func:`_fit_ellipse_rows`), which the stripes at the caps do not bias, and blurred
+    by the lens PSF (``psf_sigma_px``). Rows are weighted by their chord, so the caps
+    count less.
 
     Parameters
     ----------
@@ -218,22 +319,22 @@ def spot_profile(image, box, background, noise_dn, cfg):
     b0, b1 = max(c0 - 2, 0), min(c1 + 2, w)
     patch = image[a0:a1, b0:b1].astype(np.float32) - background
     np.maximum(patch, 0, out=patch)
-    s = patch.sum(axis=1)
+    s_all = patch.sum(axis=1)
     n_cols = patch.shape[1]
-    p = (np.partition(patch, n_cols - 2, axis=1)[:, -2:].mean(axis=1) if n_cols >= 2
-         else patch[:, 0])
-    peak = float(p.max()) if len(p) else 0.0
+    p_all = (np.partition(patch, n_cols - 2, axis=1)[:, -2:].mean(axis=1) if n_cols >= 2
+             else patch[:, 0])
+    peak = float(p_all.max()) if len(p_all) else 0.0
     if peak <= 0:
         return None
     # the clipped background noise adds ~0.4σ per pixel to a row sum
     floor = 0.4 * noise_dn * n_cols
     # a disc row is lit at least at the lamp's off level (5 % of on); the optics' faint
     # wide halo around a bright spot stays below HALO_FRACTION of the peak per pixel
-    lit = (s > floor + 3.0 * noise_dn * np.sqrt(n_cols)) & (p > HALO_FRACTION * peak)
+    lit = (s_all > floor + 3.0 * noise_dn * np.sqrt(n_cols)) & (p_all > HALO_FRACTION * peak)
     top, bottom = _lit_extent(lit, r0 - a0, r1 - a0)
     idx = np.arange(top, bottom + 1)
-    s = np.maximum(s[idx] - floor, 0.0)
-    p = p[idx]
+    s = np.maximum(s_all[idx] - floor, 0.0)
+    p = p_all[idx]
     rows = a0 + idx
     cut = b0 <= cfg.border_margin_px or b1 >= w - cfg.border_margin_px
     # a spot cut by the top or bottom border has no visible end there: the ellipse
@@ -246,29 +347,47 @@ def spot_profile(image, box, background, noise_dn, cfg):
         shape = np.where((idx >= idx[lit][0]) & (idx <= idx[lit][-1]),
                          np.interp(idx, idx[lit], width), 0.0)
     else:
-        shape = _ellipse_shape(idx, top + SHRINK_ROWS, bottom - SHRINK_ROWS)
-    body = shape >= 0.5 * shape.max()
-    ratio = s[body] / shape[body]
-    if len(ratio) == 0:
+        shape = _ellipse_shape(idx, top + SHRINK_ROWS, bottom - SHRINK_ROWS, cfg.psf_sigma_px)
+    levels = _normalise(s, shape, cfg)
+    if levels is None:
         return None
-    a_on, a_off = np.percentile(ratio, [ON_PERCENTILE, OFF_PERCENTILE])
-    if a_on <= 0:
-        return None
-    a_off = float(np.clip(a_off, cfg.off_level * a_on, OFF_CEILING * a_on))
+    level = levels[0]
+    v_centre, height = 0.5 * (top + bottom), float(bottom - top + 1)
+    reference = (v_centre, 0.5 * height)
+    previous = (np.nan, np.nan)
+    for _ in range(0 if clipped else ENVELOPE_ITERATIONS):
+        fit = _fit_ellipse_rows(idx, s, level, reference)
+        if fit is None or max(abs(fit[0] - previous[0]), abs(fit[1] - previous[1])) < 0.05:
+            break
+        previous = v_centre, semi = fit
+        height = 2.0 * semi
+        idx = np.arange(max(int(np.ceil(v_centre - semi - 0.5)), 0),
+                        min(int(np.floor(v_centre + semi + 0.5)), len(s_all) - 1) + 1)
+        s = np.maximum(s_all[idx] - floor, 0.0)
+        p = p_all[idx]
+        rows = a0 + idx
+        shape = _ellipse_shape(idx, v_centre - semi + 0.5, v_centre + semi - 0.5,
+                               cfg.psf_sigma_px)
+        levels = _normalise(s, shape, cfg)
+        if levels is None:
+            return None
+        level = levels[0]
+        lit = p > 0.35 * peak
     shape_max = float(shape.max())
     keep = shape > 0.05 * shape_max
-    rows, s, shape = rows[keep], s[keep], shape[keep]
-    level = (s / shape - a_off) / (a_on - a_off)
+    if not np.any(keep):
+        return None
+    rows, s, shape, level = rows[keep], s[keep], shape[keep], level[keep]
     weight = np.clip((shape / shape_max - CAP_LO) / (CAP_HI - CAP_LO), 0.0, 1.0)
     cols = np.arange(b0, b1)
     col_profile = patch[idx].sum(axis=0)
     u = float((col_profile * cols).sum() / max(col_profile.sum(), 1e-6))
-    width_px = float(np.percentile(s[lit[keep]] / np.maximum(p[keep][lit[keep]], 1e-6), 90)) \
-        if np.any(lit[keep]) else 0.0
+    widths = np.sort(s[lit[keep]] / np.maximum(p[keep][lit[keep]], 1e-6))
+    width_px = float(widths[int(0.9 * (len(widths) - 1))]) if len(widths) else 0.0
     return Spot(row0=int(rows[0]), row1=int(rows[-1]) + 1, col0=int(b0), col1=int(b1),
-                u=u, v=0.5 * (a0 + top + a0 + bottom), peak_dn=peak, cut=bool(cut),
+                u=u, v=a0 + v_centre, peak_dn=peak, cut=bool(cut),
                 rows=rows, level=level.astype(float), weight=weight.astype(float),
-                height_px=float(bottom - top + 1), width_px=width_px)
+                height_px=height, width_px=width_px)
 
 
 def detect(image, cfg):

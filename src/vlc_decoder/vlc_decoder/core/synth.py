@@ -334,7 +334,7 @@ def render_streams(stream, phase_chips, rate_scale, row_time_s=30e-6, exposure_s
     return (mean - off_level) / (1 - off_level)
 
 
-def fuzz_profiles(rng, kind, n, length=100):
+def fuzz_profiles(rng, kind, n, cfg=None):
     """A batch of random or corrupted stripe profiles and the UID each truly carries.
 
     Kinds: ``random_noise`` (uniform levels), ``random_chips`` (i.i.d. chips),
@@ -344,11 +344,21 @@ def fuzz_profiles(rng, kind, n, length=100):
     is then what was sent), ``wrong_rate`` (chip rate off by 2.5–20 %), ``truncated``
     (10–185 rows kept), ``noise`` (level gain/offset errors and noise σ 0.05–0.6).
 
+    ``cfg`` (a DecoderConfig; default the protocol's 10 kchip/s, 30 µs rows, 50 µs
+    exposure) sets the row timing, chip rate and off level the profiles are rendered with.
+
     Returns
     -------
     truth : (N,) the UID each profile carries, −1 where it carries none
     y : (N, FUZZ_ROWS) normalised levels; w : (N, FUZZ_ROWS) row weights
     """
+    timing = {} if cfg is None else {
+        'row_time_s': cfg.row_time_s, 'exposure_s': cfg.exposure_s,
+        'chip_rate_hz': cfg.chip_rate_hz, 'off_level': cfg.off_level}
+    row_time = timing.get('row_time_s', 30e-6)
+    chip_rate = timing.get('chip_rate_hz', 10_000.0)
+    # the stream covers every row at the fastest corrupted rate, after the start phase
+    length = int(np.ceil((FUZZ_ROWS * row_time + 1e-4) * chip_rate * 1.25)) + PACKET_CHIPS
     uids = rng.integers(0, 1 << 16, n)
     packet = text_packets(uids).astype(float)
     stream = np.tile(packet, length // 54 + 2)[:, :length]
@@ -381,7 +391,7 @@ def fuzz_profiles(rng, kind, n, length=100):
         w = ((rows >= first[:, None]) & (rows < (first + keep)[:, None])).astype(float)
     elif kind not in FUZZ_KINDS:
         raise ValueError(f'unknown fuzz kind {kind!r}')
-    y = render_streams(stream, phase, rate)
+    y = render_streams(stream, phase, rate, **timing)
     if kind == 'noise':
         y = y * rng.uniform(0.6, 1.4, (n, 1)) + rng.uniform(-0.3, 0.3, (n, 1))
         y = y + rng.normal(size=y.shape) * rng.uniform(0.05, 0.6, (n, 1))
@@ -390,8 +400,9 @@ def fuzz_profiles(rng, kind, n, length=100):
     return truth, y, w
 
 
-def fuzz_run(decode, count_per_kind, seed=20240101, chunk=10_000):
-    """Run ``decode(y, w) -> uid`` over fuzz profiles of every kind.
+def fuzz_run(decode, count_per_kind, seed=20240101, chunk=10_000, cfg=None):
+    """Run ``decode(y, w) -> uid`` over fuzz profiles of every kind (rendered with the
+    timing of ``cfg``, see :func:`fuzz_profiles`).
 
     Returns a dict per kind: profiles, accepted, correct, wrong (accepted with a UID the
     profile does not carry).
@@ -404,7 +415,7 @@ def fuzz_run(decode, count_per_kind, seed=20240101, chunk=10_000):
         while left > 0:
             n = min(chunk, left)
             left -= n
-            truth, y, w = fuzz_profiles(rng, kind, n)
+            truth, y, w = fuzz_profiles(rng, kind, n, cfg)
             uid = decode(y, w)
             got = uid >= 0
             right = got & (uid == truth)

@@ -22,6 +22,8 @@ ANOMALY = 3   # decode state of a CRC-valid UID that the lamp map does not know
 
 # how far (px) the left and right spots of one lamp may sit apart in rows
 PAIR_ROW_TOLERANCE_PX = 3.0
+# frames unseen after which a track's association gate stops growing
+MAX_GATE_GROWTH = 3
 
 
 @dataclass
@@ -36,6 +38,8 @@ class LampRecord:
     right: object = None            # Spot in the right image or None
     chips_seen: int = 0
     bits_known: int = 0
+    data_word: int = 0              # data bits read (UID << 8 | CRC), see data_mask
+    data_mask: int = 0              # which of the 24 data bits are known
     mid_row: float = 0.0            # mean row of the spot (exposure mid-time reference)
     source: str = ''                # which image(s) the stripes were read from
     content_aligned: bool = False   # the lamp's clock is off: aligned by content
@@ -50,13 +54,31 @@ class _Track:
     disparity: float
     stamp_ns: int
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    acceleration: np.ndarray = field(default_factory=lambda: np.zeros(2))
     missed: int = 0
     seen: int = 0
     anomaly_reported: bool = False
 
     def predict(self, stamp_ns):
+        """Predicted left-image position (px) and the part of it that the acceleration
+        contributes (px): a lamp's image speeds up as the train closes in on it (by
+        half its speed per frame at 120 km/h in the last frames), so the next position
+        is extrapolated at constant acceleration, but only from an unbroken run of
+        frames; after a gap the velocity alone is used."""
         dt = (stamp_ns - self.stamp_ns) * 1e-9
-        return np.array([self.u, self.v]) + self.velocity * dt
+        step = 0.5 * self.acceleration * dt * dt if self.missed == 0 else np.zeros(2)
+        return np.array([self.u, self.v]) + self.velocity * dt + step, float(np.hypot(*step))
+
+    def update(self, stamp_ns, u, v):
+        """Move the track to a new observation at ``stamp_ns``."""
+        dt = (stamp_ns - self.stamp_ns) * 1e-9
+        if dt > 0:
+            velocity = (np.array([u, v]) - [self.u, self.v]) / dt
+            # the acceleration needs two velocities from consecutive observations
+            self.acceleration = ((velocity - self.velocity) / dt
+                                 if self.seen >= 2 and self.missed == 0 else np.zeros(2))
+            self.velocity = velocity
+        self.u, self.v, self.stamp_ns = u, v, stamp_ns
 
 
 def _row_overlap(a, b):
@@ -144,6 +166,19 @@ class LampTracker:
         self.anomalies = {}          # uid -> count of tracks that decoded it
         self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
         self.last_stamp_ns = None
+        self.resets = 0              # times the tracks were dropped for a stamp jump
+
+    def reset(self):
+        """Forget every track (and its fragments); track ids keep counting up."""
+        self.tracks = []
+        self.last_stamp_ns = None
+        self.resets += 1
+
+    def stamp_jumped_back(self, stamp_ns):
+        """Whether ``stamp_ns`` lies more than ``stamp_jump_reset_s`` before the last
+        frame: the input restarted (a looped bag) rather than delivered a frame late."""
+        return (self.last_stamp_ns is not None and self.last_stamp_ns - int(stamp_ns)
+                > self.cfg.stamp_jump_reset_s * 1e9)
 
     def process(self, stamp_ns, left_image, right_image):
         """Decode one stereo frame (mono8 arrays of equal shape). Returns LampRecords."""
@@ -152,8 +187,17 @@ class LampTracker:
         return self.process_spots(stamp_ns, left, right)
 
     def process_spots(self, stamp_ns, left, right):
-        """Track and decode already-detected spots of one frame."""
+        """Track and decode already-detected spots of one frame.
+
+        A stamp more than ``stamp_jump_reset_s`` before the last frame resets the tracks
+        (with a warning) and is decoded as the first frame of a new sequence; a stamp
+        not after the last one otherwise raises ValueError (callers skip such frames).
+        """
         stamp_ns = int(stamp_ns)
+        if self.stamp_jumped_back(stamp_ns):
+            LOG.warning('image stamp jumped back %.3f s: lamp tracks reset',
+                        (self.last_stamp_ns - stamp_ns) * 1e-9)
+            self.reset()
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             raise ValueError(f'stamp {stamp_ns} ns is not after {self.last_stamp_ns} ns')
         self.last_stamp_ns = stamp_ns
@@ -168,10 +212,7 @@ class LampTracker:
                                disparity, stamp_ns)
                 self.tracks.append(track)
             else:
-                dt = (stamp_ns - track.stamp_ns) * 1e-9
-                if dt > 0:
-                    track.velocity = (np.array([u, v]) - [track.u, track.v]) / dt
-                track.u, track.v, track.stamp_ns = u, v, stamp_ns
+                track.update(stamp_ns, u, v)
                 if disparity is not None:
                     track.disparity = disparity
             track.missed = 0
@@ -200,25 +241,29 @@ class LampTracker:
         """Greedy nearest-neighbour association of observations to tracks."""
         pairs = []
         for t_index, track in enumerate(self.tracks):
-            pred = track.predict(stamp_ns)
+            pred, accel_step = track.predict(stamp_ns)
             dt = (stamp_ns - track.stamp_ns) * 1e-9
-            step = float(np.linalg.norm(track.velocity)) * dt
+            step = float(np.linalg.norm(track.velocity)) * dt + accel_step
             for o_index, (spot_l, spot_r) in enumerate(observations):
                 u, v, _ = self._left_position(spot_l, spot_r, track)
                 spot = spot_l if spot_l is not None else spot_r
                 # a lamp unseen for a while (vibration swings it out of view at the
-                # border) may come back some way off its predicted position
-                gate = (self.cfg.track_gate_px * (1 + track.missed) + 0.5 * step
-                        + spot.height_px)
+                # border) may come back some way off its predicted position; the growth
+                # stops after a few frames, or a stale track would reach across the image
+                # for the next lamp
+                gate = (self.cfg.track_gate_px * (1 + min(track.missed, MAX_GATE_GROWTH))
+                        + 0.5 * step + spot.height_px)
                 dist = float(np.hypot(u - pred[0], v - pred[1]))
                 if dist <= gate:
-                    pairs.append((dist, t_index, o_index))
-        # check the nearest candidates against the tracks' lamp clocks: a spot whose
-        # stripes do not fall on a track's chip grid belongs to another lamp
+                    tight = track.missed == 0 and dist <= self.cfg.track_gate_px + 0.25 * step
+                    pairs.append((dist, t_index, o_index, tight))
+        # check the nearest candidates against the tracks' lamps: a spot whose stripes
+        # are off a track's chip grid, or read chips its packet does not have, belongs
+        # to another lamp
         checked = []
-        for dist, t_index, o_index in sorted(pairs):
+        for dist, t_index, o_index, tight in sorted(pairs):
             rows, level, weight, _ = combine_profiles(*observations[o_index])
-            if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight):
+            if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight, tight):
                 checked.append((dist, t_index, o_index))
         pairs = checked
         pairs.sort()
@@ -251,5 +296,6 @@ class LampTracker:
         return LampRecord(track_id=track.track_id, state=state, uid=uid,
                           position_m=position, left=spot_l, right=spot_r,
                           chips_seen=asm.chips_seen, bits_known=asm.bits_known,
+                          data_word=asm.data_word, data_mask=asm.data_mask,
                           mid_row=0.5 * (float(rows[0]) + float(rows[-1])),
                           source=source, content_aligned=asm.content_mode)

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# The README's accuracy section (`make evaluate`, after setup), on a quiet machine:
+#  1. the paper's protocols through the whole graph (20 static points x 10 trials,
+#     20-120 km/h x 10 runs) and latency as on the train (sensor bags replayed at real
+#     time): the run that must finish in under 30 minutes (it prints its wall time);
+#  2. the ablations, every positioning method side by side, lamp outage and forged lamp;
+#  3. one report over all of it, written into README.md and the companion docs.
+# Bags, logs and report: out/eval/ (OUT=... to change).
+set -eo pipefail
+cd "$VLC_WS"
+out="${OUT:-out/eval}"
+rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
+ros2run train_localizer run_evaluation --protocol full --latency --out "$out"
+ros2run train_localizer run_evaluation --protocol companions --ablations --out "$out"
+ros2run train_localizer run_evaluation --protocol full --latency --ablations \
+    --companions --outage --forged --rescore --out "$out" --readme README.md \
+    --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md
