@@ -11,7 +11,9 @@ cd "$VLC_WS"
 out="${OUT:-out/eval}"
 rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
 ros2run train_localizer run_evaluation --protocol full --latency --out "$out"
-ros2run train_localizer run_evaluation --protocol companions --ablations --out "$out"
+ros2run train_localizer run_evaluation --protocol companions --ablations \
+    --ablation-trials 1 --ablation-runs 1 --out "$out"
 ros2run train_localizer run_evaluation --protocol full --latency --ablations \
-    --companions --outage --forged --rescore --out "$out" --readme README.md \
+    --ablation-trials 1 --ablation-runs 1 --companions --outage --forged --rescore \
+    --out "$out" --readme README.md \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md

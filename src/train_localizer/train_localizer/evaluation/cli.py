@@ -204,7 +204,7 @@ def main(argv=None):
         # C++ signal-handler thread aborts after an interrupt.
         os._exit(130)
     replayed = list(results.get('replay') or []) + latency_results
-    static_results, dynamic_results = results['static'], results['dynamic']
+    static_results, dynamic_results = results.get('static', []), results.get('dynamic', [])
     ablation = None
     if args.ablations:
         table, figures = ablations.ablation_table(results)

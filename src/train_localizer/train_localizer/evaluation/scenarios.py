@@ -276,6 +276,9 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
     out_dir = pathlib.Path(out_dir)
     items = [(group, scenario) for group, scenarios in groups.items()
              for scenario in scenarios]
+    # a group with no scenarios this time (e.g. static in `--protocol companions`) keeps
+    # what an earlier run into the same folder recorded
+    groups = {group: scenarios for group, scenarios in groups.items() if scenarios}
     for group in groups:
         (out_dir / group).mkdir(parents=True, exist_ok=True)
     order = sorted(range(len(items)), key=lambda i: -items[i][1].duration_s)
@@ -284,6 +287,8 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
         path = out_dir / group / 'results.jsonl'
         if path.exists():
             for line in path.read_text(encoding='utf-8').splitlines():
+                if not line.strip():
+                    continue
                 prior = json.loads(line)
                 previous[(group, prior['scenario']['name'])] = prior
     done = [0]

@@ -99,7 +99,9 @@ class LampMap:
     @classmethod
     def load(cls, path):
         with open(path, 'r', encoding='utf-8') as stream:
-            data = yaml.safe_load(stream)
+            # libyaml's safe loader where PyYAML has it: 8x faster on the 200-lamp map,
+            # which every node and every evaluation scenario loads
+            data = yaml.load(stream, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
         if not isinstance(data, dict) or 'lamps' not in data:
             raise ValueError(f'{path}: not a lamp map (no "lamps" list)')
         lamps = [Lamp(uid=int(d['uid']), line_id=int(d['line_id']),
