@@ -48,6 +48,21 @@ def test_anomaly_uid_is_passed_on_far_records_stay_unmatched():
     assert obs[0].uid == 0x7ABC and unmatched == 1
 
 
+def test_a_spot_cut_by_the_border_joins_within_its_box_a_small_one_only_close():
+    # the lamp 0.5 m ahead (rig, out/eval static_00.5m): the decoder centres the visible
+    # part of a spot cut by the bottom border, the spot locator the fitted ellipse
+    cut = lamps((4101, 2, 149.5, 681.0))
+    cut[0]['left_u_min'], cut[0]['left_u_max'] = 91.0, 198.0
+    cut[0]['left_v_min'], cut[0]['left_v_max'] = 652.0, 719.0
+    obs, unmatched = join_frame(10, spots((146.1, 700.0)), cut)
+    assert unmatched == 0 and obs[0].uid == 4101
+    small = lamps((4101, 2, 149.5, 681.0))
+    small[0]['left_u_min'], small[0]['left_u_max'] = 145.0, 154.0
+    small[0]['left_v_min'], small[0]['left_v_max'] = 677.0, 685.0
+    obs, unmatched = join_frame(10, spots((146.1, 700.0)), small)
+    assert unmatched == 1 and obs[0].uid is None
+
+
 def test_frames_wait_for_both_halves_and_are_released_when_the_decoder_moves_on():
     j = FrameJoiner(JoinConfig(timeout_s=10.0))
     assert j.add_spots(100, spots((500.0, 200.0)), 0.0) == []

@@ -10,9 +10,13 @@ moved past that stamp or after ``timeout_s`` of waiting; lamp records whose spot
 come are dropped the same way.
 
 Inside a frame a decoder record belongs to the spot pair nearest to it in the left
-image (within ``match_radius_px``): the decoder's spot centre (``left_u``, ``left_v``)
-and the spot locator's sub-pixel centre (``u_left``, ``v_left``) of one lamp differ by
-the decoder's coarser centring only, while lamps are tens of pixels apart.
+image (within ``match_radius_px``, or half the larger side of the decoder's spot box
+when that is more): the decoder's spot centre (``left_u``, ``left_v``) and the spot
+locator's sub-pixel centre (``u_left``, ``v_left``) of one lamp differ by the decoder's
+coarser centring only, while lamps are tens of pixels apart. A near spot cut by the
+image border is the large case: the decoder centres the visible part, the spot locator
+the whole fitted ellipse (19 px apart for the lamp 0.5 m ahead, whose 67 x 107 px box
+no other lamp comes near).
 """
 from dataclasses import dataclass
 import math
@@ -108,6 +112,18 @@ def lamp_uids(lamps):
     return uids, pos
 
 
+def lamp_box_half_sides(lamps):
+    """Half the larger side of each record's left-image spot box (px; 0 without a box)."""
+    names = lamps.dtype.names or ()
+    box = ('left_u_min', 'left_u_max', 'left_v_min', 'left_v_max')
+    if lamps.size == 0 or not all(n in names for n in box):
+        return np.zeros(lamps.size)
+    width = np.asarray(lamps['left_u_max'], float) - np.asarray(lamps['left_u_min'], float)
+    height = np.asarray(lamps['left_v_max'], float) - np.asarray(lamps['left_v_min'], float)
+    half = 0.5 * np.maximum(width, height)
+    return np.where(np.isfinite(half) & (half > 0.0), half, 0.0)
+
+
 def join_frame(stamp_ns, spots, lamps, config=None):
     """Observations of one frame: spot pairs with the UIDs of the matching lamp records.
 
@@ -122,13 +138,14 @@ def join_frame(stamp_ns, spots, lamps, config=None):
     if lamps is None or not obs:
         return obs, 0 if lamps is None else int(lamps.size)
     uids, pos = lamp_uids(lamps)
+    radius = np.maximum(config.match_radius_px, lamp_box_half_sides(lamps))
     spot_uv = np.array([o.uv_left for o in obs])
     unmatched = 0
     taken = set()
     for k, uid in enumerate(uids):
         d = np.linalg.norm(spot_uv - pos[k], axis=1)
         j = int(np.nanargmin(d)) if np.any(np.isfinite(d)) else -1
-        if j < 0 or not d[j] <= config.match_radius_px or j in taken:
+        if j < 0 or not d[j] <= radius[k] or j in taken:
             unmatched += 1
             continue
         taken.add(j)
