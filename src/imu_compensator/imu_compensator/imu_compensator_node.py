@@ -29,7 +29,6 @@ gaps) is counted, warned about (throttled) and skipped or handled as described i
 ``config/imu_compensator_node.yaml``.
 """
 from dataclasses import dataclass
-import gc
 import math
 import sys
 
@@ -51,6 +50,7 @@ from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorCo
 from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.process import freeze_start_up_objects
 
 DEG = math.pi / 180.0
 #: Exit code of an invalid configuration (as the rig's nodes).
@@ -376,11 +376,7 @@ def main(args=None):
         rclpy.try_shutdown()
         return EXIT_INVALID_CONFIG
     try:
-        # Start-up objects (imports, lamp map) out of the garbage collector's reach: a
-        # full collection then costs well under 1 ms instead of ~50 ms on some frame
-        # (measured in spot_locator, docs/arch/spot_locator.md "Per-frame tail").
-        gc.collect()
-        gc.freeze()
+        freeze_start_up_objects()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

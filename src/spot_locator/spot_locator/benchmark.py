@@ -413,12 +413,13 @@ def _tail_run(bag, variant, results):
     from sensor_msgs.msg import CameraInfo, Image
 
     from . import spot_locator_node as node_mod
+    from vlc_stereo_camera.process import freeze_start_up_objects
     cv2.setNumThreads(1)
     rclpy.init()
     node = node_mod.SpotLocatorNode(
         parameter_overrides=[Parameter('warm_up', value=variant != 'cold')])
     if variant != 'cold':
-        node_mod.freeze_start_up_objects()
+        freeze_start_up_objects()
     pauses, started = [], [0.0]
 
     def on_gc(phase, info):

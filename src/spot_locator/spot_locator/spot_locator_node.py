@@ -35,7 +35,6 @@ throttled warning, so the replay is processed instead of being dropped as out of
 """
 from collections import deque, OrderedDict
 from dataclasses import dataclass
-import gc
 import sys
 import threading
 import time
@@ -61,6 +60,7 @@ from .core.detection import DetectConfig
 from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from .core.matching import MatchConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.process import freeze_start_up_objects
 
 EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0
@@ -425,20 +425,6 @@ class SpotLocatorNode(Node):
             self._wake.notify_all()
         self._worker.join(timeout=5.0)
         super().destroy_node()
-
-
-def freeze_start_up_objects():
-    """Move everything allocated so far out of the garbage collector's reach.
-
-    After the imports (rclpy, numpy, scipy, OpenCV, scikit-image) and the warm-up the
-    process holds ~90k GC-tracked objects that live until exit, and every full
-    (generation-2) collection traverses them all: 45–55 ms on this machine, landing on
-    whichever frame happens to allocate at that moment. Frozen, a full collection only
-    sees what was allocated since (well under a millisecond). Per-frame garbage is
-    still collected as before.
-    """
-    gc.collect()
-    gc.freeze()
 
 
 def main(args=None):

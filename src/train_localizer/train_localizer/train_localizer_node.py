@@ -26,7 +26,6 @@ bad input is logged (throttled per kind) and skipped. Parameters:
 ``config/train_localizer_node.yaml``.
 """
 from collections import deque
-import gc
 import math
 import sys
 import time
@@ -46,6 +45,7 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.process import freeze_start_up_objects
 
 from . import conversions
 from .core.fix import FixConfig, RigGeometry
@@ -453,11 +453,7 @@ def main(args=None):
     node = None
     try:
         node = TrainLocalizerNode()
-        # Start-up objects (imports, lamp map) out of the garbage collector's reach: a
-        # full collection then costs well under 1 ms instead of ~50 ms on some frame
-        # (measured in spot_locator, docs/arch/spot_locator.md "Per-frame tail").
-        gc.collect()
-        gc.freeze()
+        freeze_start_up_objects()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -27,7 +27,6 @@ Frames are decoded on the executor thread: a stereo pair takes a few millisecond
 (``decoder_benchmark``), well inside the 33 ms frame period. OpenCV runs single-threaded.
 """
 import collections
-import gc
 import sys
 import time
 
@@ -43,6 +42,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_stereo_camera.process import freeze_start_up_objects
 
 from . import conversions
 from .core.config import DecoderConfig
@@ -294,11 +294,7 @@ def main(args=None):
     code = 0
     try:
         node = VlcDecoderNode()
-        # Start-up objects (imports, lamp map) out of the garbage collector's reach: a
-        # full collection then costs well under 1 ms instead of ~50 ms on some frame
-        # (measured in spot_locator, docs/arch/spot_locator.md "Per-frame tail").
-        gc.collect()
-        gc.freeze()
+        freeze_start_up_objects()
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

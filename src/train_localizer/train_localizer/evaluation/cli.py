@@ -51,12 +51,11 @@ def latency_replays(out, rescore=False):
     for speed in LATENCY_SPEEDS_KMH:
         bag = out / 'latency_bags' / f'sensors_{speed:03d}kmh'
         if not (bag / 'metadata.yaml').exists() and not rescore:
-            scenario = sample_scenario(bag.name, float(speed), duration_s=LATENCY_BAG_S,
-                                       realtime_factor=0.3)
             # uncompressed: the player would otherwise decompress a zstd chunk of several
             # frames at once, a CPU burst on the cores the measured nodes share
-            scenario.node_params['bag_recorder']['compression'] = 'none'
-            problems = record_sample_bag(bag, scenario)
+            problems = record_sample_bag(bag, sample_scenario(
+                bag.name, float(speed), duration_s=LATENCY_BAG_S, realtime_factor=0.3,
+                compression='none'))
             for problem in problems:
                 logging.getLogger(__name__).warning('%s: %s', bag, problem)
         replays.append(scenarios.replay_scenario(bag, 1.0, lean_recording=True))
@@ -148,6 +147,7 @@ def main(argv=None):
                         help='also write the report between the evaluation markers of this '
                              'Markdown file (figures copied beside it under docs/evaluation)')
     args = parser.parse_args(argv)
+    command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
@@ -219,13 +219,11 @@ def main(argv=None):
         added = companions.append_to_report(out, results.get('companions', ()),
                                             results.get('outage', ()), results.get('forged', ()))
         text += added
-        command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
         for path in args.companions_docs:
             companions.update_docs(path, added, command)
             print(f'{path}: companions section rewritten')
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
-    command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
     wall = time.monotonic() - started
     if not args.rescore:
         # which runs made the bags, and how long each took (the README quotes it)
