@@ -251,16 +251,23 @@ class _RowSums:
     """
 
     def __init__(self, roi, saturated=None):
-        w = roi.shape[1]
+        h, w = roi.shape
         self.roi = roi
         # Cumulative sums, O(h·w) and single-threaded. (A product with a triangular
         # (w, w + 1) matrix is O(h·w²) and goes to the multi-threaded BLAS: 15 ms and
-        # wall-time spikes on a near lamp's 100-row, 250-column ROI.)
-        self.s0 = _prefix_sums(roi)
-        self.s1 = _prefix_sums(roi * np.arange(w, dtype=float))
+        # wall-time spikes on a near lamp's 100-row, 250-column ROI.) Both in one
+        # (2, h, w + 1) array, read through flat indices r·(w + 1) + c: one gather
+        # gives a window's sum and first moment.
+        self.stride = w + 1
+        both = np.zeros((2, h, w + 1))
+        np.cumsum(roi, axis=1, out=both[0, :, 1:])
+        np.cumsum(roi * np.arange(w, dtype=float), axis=1, out=both[1, :, 1:])
+        self.s0, self.s1 = both[0], both[1]
+        self.flat = both.reshape(2, -1)
         self.n_sat = None
         if saturated is not None and saturated.any():
             self.n_sat = _prefix_sums(saturated)
+        self._roi_flat = None
 
     def columns(self, lo, hi):
         """First and last column (int) of the windows ``lo ≤ u ≤ hi``; empty: last < first."""
@@ -269,15 +276,29 @@ class _RowSums:
         c1 = np.minimum(np.maximum(np.floor(hi), -1), w - 1).astype(int)
         return c0, np.maximum(c1, c0 - 1)
 
+    def window(self, rows, c0, c1):
+        """(2, n): sum and first moment Σ u·roi of each row's window c0 ≤ u ≤ c1."""
+        base = rows * self.stride
+        return self.flat.take(base + (c1 + 1), axis=1) - self.flat.take(base + c0, axis=1)
+
+    def level(self, rows, c0, c1):
+        """Sum of each row's window c0 ≤ u ≤ c1."""
+        base = rows * self.stride
+        s0 = self.flat[0]
+        return s0.take(base + (c1 + 1)) - s0.take(base + c0)
+
     def peak(self, rows, c0, c1):
         """Largest value of each row's window (−inf when empty)."""
         w = self.roi.shape[1]
-        flat = np.empty(len(rows) * w + 1)
-        flat[:-1] = self.roi[rows].ravel()
-        flat[-1] = 0.0
-        start = np.arange(len(rows)) * w + c0
+        if self._roi_flat is None:
+            # the whole ROI row after row, and a 0 past its end for the last bound
+            self._roi_flat = np.append(self.roi.ravel(), 0.0)
+        flat = self._roi_flat
+        start = rows * w + c0
         # maxima over [start, end) and over the gaps between windows, interleaved
-        bounds = np.column_stack([start, start + np.maximum(c1 - c0 + 1, 0)]).ravel()
+        bounds = np.empty(2 * len(rows), int)
+        bounds[0::2] = start
+        bounds[1::2] = start + np.maximum(c1 - c0 + 1, 0)
         out = np.maximum.reduceat(flat, np.minimum(bounds, len(flat) - 1))[::2]
         return np.where(c1 >= c0, out, -np.inf)
 
@@ -301,8 +322,8 @@ def _measure_rows(sums, rows, lo, hi, core_lo=None, core_hi=None, plateau_margin
     """
     c0, c1 = sums.columns(lo, hi)
     n_pix = c1 - c0 + 1
-    S = sums.s0[rows, c1 + 1] - sums.s0[rows, c0]
-    M = (sums.s1[rows, c1 + 1] - sums.s1[rows, c0]) / np.where(S != 0.0, S, 1.0)
+    S, moment = sums.window(rows, c0, c1)
+    M = moment / np.where(S != 0.0, S, 1.0)
     # Σ (u − M)² over the window in closed form (its columns are consecutive integers)
     sum_c = 0.5 * (c0 + c1) * n_pix
     sum_c2 = (c1 * (c1 + 1.0) * (2 * c1 + 1) - (c0 - 1.0) * c0 * (2 * c0 - 1)) / 6.0
@@ -318,7 +339,7 @@ def _measure_rows(sums, rows, lo, hi, core_lo=None, core_hi=None, plateau_margin
     else:
         k0, k1 = sums.columns(np.maximum(core_lo, c0), np.minimum(core_hi, c1))
         n_core = k1 - k0 + 1
-        P = (sums.s0[rows, k1 + 1] - sums.s0[rows, k0]) / np.maximum(n_core, 1)
+        P = sums.level(rows, k0, k1) / np.maximum(n_core, 1)
         empty = n_core == 0
         if empty.any():
             P[empty] = (peak[empty] if peak is not None
@@ -402,10 +423,11 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, thresh
     # window only adds zero-mean noise, a narrower one would cut the chord)
     vbar, mid_poly, w2_poly = sketch
     d = np.arange(h, dtype=float) - vbar
-    w2 = np.polyval(w2_poly, d)
+    w2 = (w2_poly[0] * d + w2_poly[1]) * d + w2_poly[2]
     inside = np.nonzero(w2 > 0.0)[0]
     half = np.sqrt(w2[inside])
-    mid = np.polyval(mid_poly, d[inside])
+    di = d[inside]
+    mid = (mid_poly[0] * di + mid_poly[1]) * di + mid_poly[2]
     own_lo, own_hi = np.full(h, np.inf), np.full(h, -np.inf)
     own_lo[rows], own_hi[rows] = lo, hi
     rows2 = _measure_rows(sums, inside,
@@ -415,8 +437,9 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, thresh
     # the first ellipse runs past the ROI's top or bottom row, and that row is the
     # image's: the edge cut one of its tips (a tip hidden in a dark stripe inside the
     # image keeps its rows, measured here like any other)
-    cut = bool(((np.polyval(w2_poly, [-1.0 - vbar, h - vbar]) > 0.0)
-                & np.asarray(edge_rows, bool)).any())
+    g2, g1, g0 = (float(c) for c in w2_poly)
+    cut = any(bool(edge) and (g2 * x + g1) * x + g0 > 0.0
+              for x, edge in zip((-1.0 - vbar, h - vbar), edge_rows))
     second = _fit_rows(rows2, noise_sigma, cfg, passes=2, cut=cut)
     return second if second.info.get('v_from_width') else _fit_rows(own, noise_sigma, cfg, 1)
 
@@ -436,11 +459,15 @@ def _sketch_ellipse(rows, noise_sigma, cfg):
     if use.sum() < 4:
         return None
     v = rows.v[use]
-    vbar = float(v.mean())
+    vbar = float(v.sum()) / len(v)
     d = v - vbar
-    # one quadratic design for both (the midpoints' d² term only absorbs noise)
-    A = np.vander(d, 3)
-    coef = np.linalg.solve(A.T @ A, A.T @ np.column_stack([rows.M[use], half[use] ** 2]))
+    # one quadratic design for both (the midpoints' d² term only absorbs noise); the
+    # normal equations solved in closed form, coefficients highest power first
+    d2 = d * d
+    N_inv = _inv_sym3(float(len(d)), float(d.sum()), float(d2.sum()), float(d2 @ d),
+                      float(d2 @ d2))
+    Y = np.column_stack([rows.M[use], half[use] ** 2])
+    coef = (N_inv @ np.array([Y.sum(axis=0), d @ Y, d2 @ Y]))[::-1]
     mid_poly, w2_poly = coef[:, 0], coef[:, 1]
     if not w2_poly[0] < 0.0:
         return None
@@ -461,7 +488,7 @@ def _fit_rows(rows, noise_sigma, cfg, passes, cut=False):
         return CentreEstimate()
     r = rows if n_lit == len(lit) else rows.take(lit)
     S, P, n_pix, n_core, M = r.S, r.P, r.n_pix, r.n_core, r.M
-    vbar = float(r.v.mean())
+    vbar = float(r.v.sum()) / len(r.v)
     dv = r.v - vbar
 
     # midpoint line m = a + k (v - vbar): noise variance of each row's first moment
@@ -545,20 +572,51 @@ def _width_vertex(half, d, S, P, n_pix, n_core, noise_sigma, cfg, d_min, d_max):
 
 
 def _wls(x, y, weights, degree):
-    """Weighted least-squares polynomial ``y ≈ Σ c_j x^j`` (j ≤ degree) by the normal
-    equations.
+    """Weighted least-squares polynomial ``y ≈ Σ c_j x^j`` (j ≤ degree 1 or 2) by the
+    normal equations.
 
     Returns the coefficients (lowest power first), their covariance (scaled by the
     residual χ² per degree of freedom when that exceeds 1) and the RMS residual.
     """
-    A = np.vander(x, degree + 1, increasing=True)
-    Aw = A * weights[:, None]
-    N_inv = np.linalg.inv(Aw.T @ A)
-    c = N_inv @ (Aw.T @ y)
-    r = y - A @ c
+    # the normal matrix from the weighted moments, inverted in closed form (numpy's
+    # general solvers cost more in call overhead than these few rows in arithmetic)
+    wx = weights * x
+    s0, s1, s2 = float(weights.sum()), float(wx.sum()), float(wx @ x)
+    t0, t1 = float(weights @ y), float(wx @ y)
+    if degree == 1:
+        N_inv = _inv_sym2(s0, s1, s2)
+        c = N_inv @ np.array([t0, t1])
+        fit = c[0] + c[1] * x
+    elif degree == 2:
+        wx2 = wx * x
+        s3, s4, t2 = float(wx2 @ x), float(wx2 @ (x * x)), float(wx2 @ y)
+        N_inv = _inv_sym3(s0, s1, s2, s3, s4)
+        c = N_inv @ np.array([t0, t1, t2])
+        fit = c[0] + (c[1] + c[2] * x) * x
+    else:
+        raise ValueError('degree must be 1 or 2')
+    r = y - fit
     rr = r * r
     chi2 = float(weights @ rr) / max(len(y) - degree - 1, 1)
-    return c, N_inv * max(chi2, 1.0), float(np.sqrt(rr.mean()))
+    return c, N_inv * max(chi2, 1.0), float(np.sqrt(float(rr.sum()) / len(rr)))
+
+
+def _inv_sym2(a, b, c):
+    """Inverse of [[a, b], [b, c]] (LinAlgError when singular)."""
+    det = a * c - b * b
+    if det == 0.0 or not np.isfinite(det):
+        raise np.linalg.LinAlgError('Singular matrix')
+    return np.array([[c, -b], [-b, a]]) / det
+
+
+def _inv_sym3(s0, s1, s2, s3, s4):
+    """Inverse of the Hankel matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]]."""
+    c00, c01, c02 = s2 * s4 - s3 * s3, s2 * s3 - s1 * s4, s1 * s3 - s2 * s2
+    c11, c12, c22 = s0 * s4 - s2 * s2, s1 * s2 - s0 * s3, s0 * s2 - s1 * s1
+    det = s0 * c00 + s1 * c01 + s2 * c02
+    if det == 0.0 or not np.isfinite(det):
+        raise np.linalg.LinAlgError('Singular matrix')
+    return np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
 
 
 def _conic_from_chords(a, k, quad, vbar):

@@ -81,12 +81,16 @@ def background_and_noise(image, step=8):
     """Robust background level and noise σ (DN) from a subsampled image (median, MAD)."""
     sample = image[::step, ::step].ravel()
     if sample.dtype == np.uint8:
-        # histogram median: far cheaper than a partition sort on every frame
+        # histogram median: far cheaper than a partition sort on every frame; the
+        # deviations' histogram is the level histogram folded about the median
         hist = np.bincount(sample, minlength=256)
-        med = float(np.searchsorted(np.cumsum(hist), 0.5 * sample.size))
-        dev = np.bincount(np.abs(sample.astype(np.int16) - int(med)).astype(np.uint8),
-                          minlength=256)
-        mad = float(np.searchsorted(np.cumsum(dev), 0.5 * sample.size))
+        half = 0.5 * sample.size
+        m = int(np.searchsorted(np.cumsum(hist), half))
+        dev = np.zeros(256, hist.dtype)
+        dev[:256 - m] = hist[m:]
+        dev[1:m + 1] += hist[m - 1::-1] if m > 0 else 0
+        med = float(m)
+        mad = float(np.searchsorted(np.cumsum(dev), half))
     else:
         sample = sample.astype(np.float32)
         med = float(np.median(sample))
@@ -187,34 +191,34 @@ def detect_spots(image, config=None):
     bg, sigma = background_and_noise(img)
     thr = max(cfg.threshold_snr * sigma, cfg.min_threshold_dn)
     full_scale = np.iinfo(img.dtype).max if img.dtype.kind in 'ui' else np.inf
-    if img.dtype == np.uint8:
-        _, binary = cv2.threshold(img, min(bg + thr, 255.0), 1, cv2.THRESH_BINARY)
-    else:
-        binary = (img > bg + thr).astype(np.uint8)
-    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    boxes = [cv2.boundingRect(c) for c in contours]
+    # lit: img > level (for 8 bits as cv2.threshold at min(bg + thr, 255) binarises)
+    level = min(bg + thr, 255.0) if img.dtype == np.uint8 else bg + thr
+    boxes = _fragment_boxes(img, level)
     h, w = img.shape
     out = []
     n = max(cfg.closing_rows, 1)
-    kernel = np.ones((n, 1), np.uint8)
-    grow = np.ones((3, 3), np.uint8)
+    kernel = _vertical_line(n)
     for x, y, bw, bh in _group_fragments(boxes, n):
         u0, v0 = max(x - cfg.pad_px, 0), max(y - cfg.pad_px, 0)
         u1, v1 = min(x + bw + cfg.pad_px, w), min(y + bh + cfg.pad_px, h)
-        padded = np.pad(binary[v0:v1, u0:u1], ((n, n), (0, 0)))
+        raw = img[v0:v1, u0:u1]
+        # the ROI's binary, padded with n dark rows above and below (the closing's
+        # erosion must not eat the spot's top and bottom rows at the ROI edge)
+        padded = np.zeros((v1 - v0 + 2 * n, u1 - u0), np.uint8)
+        np.greater(raw, level, out=padded[n:-n], casting='unsafe')
         closed = cv2.morphologyEx(padded, cv2.MORPH_CLOSE, kernel)[n:-n]
-        area = int(np.count_nonzero(closed))
+        area = cv2.countNonZero(closed)
         if area < cfg.min_area_px:
             continue
-        support = cv2.dilate(closed, grow).astype(bool)
-        raw = img[v0:v1, u0:u1]
+        support = cv2.dilate(closed, _GROW).view(bool)
         if cfg.local_background:
             local_bg, slope_u, slope_v = local_background(
                 img, (x, y, bw, bh), cfg.background_gap_px, cfg.background_ring_px, bg,
                 bg + thr, cfg.background_plane)
         else:
             local_bg, slope_u, slope_v = bg, 0.0, 0.0
-        roi = raw.astype(np.float32) - np.float32(local_bg)
+        roi = raw.astype(np.float32)
+        roi -= np.float32(local_bg)
         if slope_u or slope_v:
             # the plane about the box centre, in the ROI's pixel grid
             cu, cv_ = x + 0.5 * (bw - 1) - u0, y + 0.5 * (bh - 1) - v0
@@ -223,10 +227,90 @@ def detect_spots(image, config=None):
         cut_columns = x == 0 or x + bw == w
         touches = cut_columns or y == 0 or y + bh == h
         out.append(SpotRegion(int(u0), int(v0), roi, support, int(y), int(y + bh - 1),
-                              area, bool(touches), local_bg, sigma, thr, raw >= full_scale,
-                              bool(cut_columns), (slope_u, slope_v), (v0 == 0, v1 == h)))
+                              int(area), bool(touches), local_bg, sigma, thr,
+                              raw >= full_scale, bool(cut_columns), (slope_u, slope_v),
+                              (v0 == 0, v1 == h)))
     out.sort(key=lambda spot: -spot.area_px)
     return out[:cfg.max_spots]
+
+
+_GROW = np.ones((3, 3), np.uint8)
+_LINES = {}
+
+
+def _vertical_line(n):
+    """The (n, 1) structuring element of the stripe closing (cached)."""
+    if n not in _LINES:
+        _LINES[n] = np.ones((n, 1), np.uint8)
+    return _LINES[n]
+
+
+# rows per block of the coarse pass of _fragment_boxes; more cells than this: full frame
+_BLOCK_ROWS = 8
+_MAX_CELLS = 64
+
+
+def _fragment_boxes(img, level):
+    """Bounding boxes (x, y, w, h) of the 8-connected components of ``img > level``.
+
+    The same boxes, in the same order, as ``cv2.findContours`` (external contours) on the
+    whole thresholded frame, without thresholding and tracing the whole frame: one pass
+    takes the maximum of every block of 8 rows per column; each band of consecutive
+    blocks holding a lit pixel is split into runs of columns lit in it, and the contours
+    are traced in each such (band × columns) cell only. A component lies inside one
+    cell: cells are separated by whole unlit rows or columns, which 8-connectivity does
+    not cross. A frame with many lit cells (noise) is traced whole.
+    """
+    H, W = img.shape
+    nb = -(-H // _BLOCK_ROWS)
+    if img.dtype.kind not in 'ui' or nb < 2:
+        return _frame_boxes(img, level)
+    full = H // _BLOCK_ROWS
+    blocks = np.empty((nb, W), img.dtype)
+    img[:full * _BLOCK_ROWS].reshape(full, _BLOCK_ROWS, W).max(axis=1, out=blocks[:full])
+    if full < nb:
+        img[full * _BLOCK_ROWS:].max(axis=0, out=blocks[full])
+    cells = []
+    for b0, b1 in _runs(blocks.max(axis=1) > level):
+        for c0, c1 in _runs(blocks[b0:b1].max(axis=0) > level):
+            cells.append((b0 * _BLOCK_ROWS, min(b1 * _BLOCK_ROWS, H), c0, c1))
+        if len(cells) > _MAX_CELLS:
+            return _frame_boxes(img, level)
+    found = []
+    sort = False
+    for i, (r0, r1, c0, c1) in enumerate(cells):
+        sort = sort or (i > 0 and r0 == cells[i - 1][0])     # cells side by side
+        # one dark pixel around the cell (the tracer's own border)
+        cell = np.zeros((r1 - r0 + 2, c1 - c0 + 2), np.uint8)
+        np.greater(img[r0:r1, c0:c1], level, out=cell[1:-1, 1:-1], casting='unsafe')
+        contours, _ = cv2.findContours(cell, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE,
+                                       offset=(c0 - 1, r0 - 1))
+        found[:0] = contours
+    # findContours lists the contours in reverse raster order of their first point: so
+    # does a cell, and the bands are in raster order; cells side by side interleave
+    if sort:
+        found.sort(key=lambda c: c[0, 0, ::-1].tolist(), reverse=True)
+    return [cv2.boundingRect(c) for c in found]
+
+
+def _frame_boxes(img, level):
+    """:func:`_fragment_boxes` by thresholding and tracing the whole frame."""
+    if img.dtype == np.uint8:
+        _, binary = cv2.threshold(img, level, 1, cv2.THRESH_BINARY)
+    else:
+        binary = (img > level).astype(np.uint8)
+    contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    return [cv2.boundingRect(c) for c in contours]
+
+
+def _runs(mask):
+    """(start, stop) of each run of True in a 1-D bool array."""
+    edges = np.flatnonzero(mask[1:] != mask[:-1]) + 1
+    if mask[0]:
+        edges = np.concatenate(([0], edges))
+    if mask[-1]:
+        edges = np.concatenate((edges, [len(mask)]))
+    return edges.reshape(-1, 2).tolist()
 
 
 def _group_fragments(boxes, max_gap_rows):

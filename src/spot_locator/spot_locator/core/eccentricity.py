@@ -172,9 +172,9 @@ def _disc_chords(K, P0, V, t, normal, radius_m, rows):
                 d * s1 * s1 - s1 * u1 + q2 * nn)
 
     t = np.asarray(t, float)
-    a00, a01, a02, a11, a12, a22 = np.array(
-        [entry(0, 0), entry(0, 1), entry(0, 2), entry(1, 1), entry(1, 2), entry(2, 2)]
-    ) @ np.vstack([np.ones_like(t), t, t * t])
+    t2 = t * t
+    a00, a01, a02, a11, a12, a22 = (c0 + c1 * t + c2 * t2 for c0, c1, c2 in (
+        entry(0, 0), entry(0, 1), entry(0, 2), entry(1, 1), entry(1, 2), entry(2, 2)))
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     y = (np.asarray(rows, float) - cy) / fy
     xm = -(a01 * y + a02) / a00
@@ -190,8 +190,13 @@ def _line_and_parabola(r, m, w2):
     sm, srm = float(m.sum()), float(r @ m)
     det = n * s2 - s1 * s1
     a, k = (s2 * sm - s1 * srm) / det, (n * srm - s1 * sm) / det
-    g1, g2 = np.linalg.solve([[n, s1, s2], [s1, s2, s3], [s2, s3, s4]],
-                             [float(w2.sum()), float(r @ w2), float(r2 @ w2)])[1:]
+    # the parabola's normal equations by Cramer's rule (g1, g2 only)
+    t0, t1, t2 = float(w2.sum()), float(r @ w2), float(r2 @ w2)
+    c00, c01, c02 = s2 * s4 - s3 * s3, s2 * s3 - s1 * s4, s1 * s3 - s2 * s2
+    c11, c12, c22 = n * s4 - s2 * s2, s1 * s2 - n * s3, n * s2 - s1 * s1
+    det3 = n * c00 + s1 * c01 + s2 * c02
+    g1 = (c01 * t0 + c11 * t1 + c12 * t2) / det3
+    g2 = (c02 * t0 + c12 * t1 + c22 * t2) / det3
     return a, k, g1, g2
 
 
@@ -226,7 +231,7 @@ def rolling_shutter_offset(P0, velocity, normal, radius_m, K, row_time_s, exposu
     if inside.sum() < 5:
         return np.zeros(2), v
     r, m, w2 = rows[inside], m[inside], w2[inside]
-    rbar = r.mean()
+    rbar = float(r.sum()) / len(r)
     a, k, g1, g2 = _line_and_parabola(r - rbar, m, w2)
     d0 = -g1 / (2.0 * g2)
     observed = np.array([a + k * d0, rbar + d0])

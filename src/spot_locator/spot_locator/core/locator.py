@@ -434,9 +434,10 @@ class SpotLocator:
                 if P is not None and np.isfinite(P).all() and P[2] > 0:
                     du, dv = db.image_velocity(P - [offset, 0.0, 0.0], velocity, g.fx,
                                                g.fy) * cfg.row_time_s
-                    M = np.array([[1.0, -du, du * s.v], [0.0, 1.0 - dv, dv * s.v],
-                                  [0.0, 0.0, 1.0]])
-                    Mi = np.linalg.inv(M)
+                    # the inverse of [[1, −du, du·v], [0, 1 − dv, dv·v], [0, 0, 1]]
+                    b, c, e = du * s.v, 1.0 - dv, dv * s.v
+                    Mi = np.array([[1.0, du / c, -du * e / c - b], [0.0, 1.0 / c, -e / c],
+                                   [0.0, 0.0, 1.0]])
                     Q = Mi.T @ Q @ Mi
                 n = ecc.pick_normal(ecc.normals_from_conic(Q, self.geom.K), self.normal_cam,
                                     cfg.conic_normal_max_angle_deg)
