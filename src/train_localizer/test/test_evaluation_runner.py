@@ -89,9 +89,19 @@ def test_lane_pace_drops_under_load_and_recovers():
     assert lane.pace == pytest.approx(0.4)
     lane.slow_down()
     assert lane.pace == lane.min_pace
-    for _ in range(20):
+    assert lane.ceiling == pytest.approx(0.36)       # 90 % of the pace that failed last
+    lane.recover()
+    lane.recover()
+    assert lane.pace == pytest.approx(0.36)          # back to the ceiling, not beyond
+    paces = []
+    for _ in range(60):
         lane.recover()
-    assert lane.pace == 1.0
+        paces.append(lane.pace)
+    assert paces[0] == pytest.approx(0.36 * 1.02)     # then probing 2 % per clean run
+    assert 0.4 < paces[9] < 0.5
+    assert lane.pace == 1.0                           # ... up to real time
+    lane.slow_down(severe=False)
+    assert lane.ceiling == pytest.approx(0.9) and lane.pace == pytest.approx(0.8)
 
 
 def test_readiness_counts_include_the_recorder():

@@ -166,7 +166,8 @@ class ForkSpawner:
         with ForkSpawner._lock:
             if ForkSpawner._context is None:
                 ctx = multiprocessing.get_context('forkserver')
-                ctx.set_forkserver_preload(modules)
+                # warm_inspect last: it indexes every module imported before it
+                ctx.set_forkserver_preload(modules + [__name__ + '_warm'])
                 ForkSpawner._context = ctx
                 ForkSpawner._preloaded = frozenset(modules)
         self._ctx = ForkSpawner._context
