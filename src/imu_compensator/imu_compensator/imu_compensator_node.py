@@ -51,6 +51,7 @@ from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
 from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 DEG = math.pi / 180.0
 #: Exit code of an invalid configuration (as the rig's nodes).
@@ -240,6 +241,7 @@ class ImuCompensatorNode(Node):
         self._out.header.frame_id = cfg.base_frame_id
         self._accepted_since_publish = 0
         self._frame_warned = False
+        self._warnings = ThrottledWarnings(self.get_logger(), cfg.warn_throttle_s)
         self._last_stamp = None
         self._diag_count = 0
         self._diag_t0 = None
@@ -272,13 +274,11 @@ class ImuCompensatorNode(Node):
             self._warn_skipped(result)
             return
         if status is SampleStatus.GAP:
-            self.get_logger().warn(f'IMU gap of {result.dt_s * 1e3:.1f} ms before t = {t_s:.6f} '
-                                   's: attitude propagated across it',
-                                   throttle_duration_sec=cfg.warn_throttle_s)
+            self._warnings.warn('gap', lambda: f'IMU gap of {result.dt_s * 1e3:.1f} ms before '
+                                f't = {t_s:.6f} s: attitude propagated across it')
         elif status is SampleStatus.RESET:
-            self.get_logger().warn(f'IMU time jumped back by {-result.dt_s:.3f} s to '
-                                   f't = {t_s:.6f} s: attitude filter reset',
-                                   throttle_duration_sec=cfg.warn_throttle_s)
+            self._warnings.warn('reset', lambda: f'IMU time jumped back by {-result.dt_s:.3f} s '
+                                f'to t = {t_s:.6f} s: attitude filter reset')
         self._last_stamp = msg.header.stamp
         self._diag_count += 1
         self._accepted_since_publish += 1
@@ -293,25 +293,23 @@ class ImuCompensatorNode(Node):
         self._pub.publish(self._out)
 
     def _warn_skipped(self, result):
-        log, throttle = self.get_logger(), self.config.warn_throttle_s
         status = result.status
         if status is SampleStatus.NONFINITE:
-            log.warn('non-finite IMU sample skipped', throttle_duration_sec=throttle)
+            self._warnings.warn('nonfinite', 'non-finite IMU sample skipped')
         elif status is SampleStatus.DUPLICATE:
-            log.warn(f'duplicate IMU stamp t = {result.t_s:.6f} s skipped',
-                     throttle_duration_sec=throttle)
+            self._warnings.warn('duplicate',
+                                lambda: f'duplicate IMU stamp t = {result.t_s:.6f} s skipped')
         else:
-            log.warn(f'out-of-order IMU sample ({result.dt_s * 1e3:.1f} ms before the newest) '
-                     'skipped', throttle_duration_sec=throttle)
+            self._warnings.warn('out_of_order', lambda: f'out-of-order IMU sample '
+                                f'({result.dt_s * 1e3:.1f} ms before the newest) skipped')
 
     def _on_heading_aiding(self, msg):
         t_s, yaw, var = pose_heading(msg)
         if not math.isfinite(var):
             var = self.config.heading_aiding_std_rad ** 2
         if not self.compensator.heading_aiding(t_s, yaw, var):
-            self.get_logger().warn(f'heading aiding at t = {t_s:.6f} s rejected (outside the '
-                                   'attitude history or not finite)',
-                                   throttle_duration_sec=self.config.warn_throttle_s)
+            self._warnings.warn('aiding_rejected', lambda: f'heading aiding at t = {t_s:.6f} s '
+                                'rejected (outside the attitude history or not finite)')
 
     # ------------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self):
