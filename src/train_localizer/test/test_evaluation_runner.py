@@ -1,6 +1,8 @@
 """Runner pieces without a graph: fork spawner, lanes, readiness counts, ablation set."""
 import json
+import os
 import subprocess
+import time
 
 import pytest
 
@@ -48,6 +50,32 @@ def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):
     # signal.pause interrupted: KeyboardInterrupt (exit 1), not a SIGKILL (-9)
     assert codes == {'tool': 1}
     assert 'KeyboardInterrupt' in graph.log('tool')
+
+
+@pytest.mark.parametrize('forked', [True, False])
+def test_nice_lowers_the_priority_of_the_child_only(spawner, tmp_path, forked):
+    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                  spawner=spawner if forked else None)
+    exe = tmp_path / 'lib' / 'pkg' / 'tool'
+    exe.parent.mkdir(parents=True, exist_ok=True)
+    if forked:
+        spawner.entry_points = {'tool': 'signal:pause'}
+        exe.touch()
+    else:
+        exe.write_text('#!/bin/sh\nexec sleep 30\n')
+        exe.chmod(0o755)
+    proc = graph.start('pkg', 'tool', nice=7)
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        deadline = time.monotonic() + 10.0
+        while (os.getpriority(os.PRIO_PROCESS, proc.pid) != base + 7
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == base + 7
+        assert os.getpriority(os.PRIO_PROCESS, 0) == base
+    finally:
+        graph.stop_all()
+    assert graph_runner.NICE_ENV not in graph.env
 
 
 def test_exit_code_of_a_failing_child(spawner, tmp_path):

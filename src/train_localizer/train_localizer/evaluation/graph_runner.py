@@ -34,6 +34,8 @@ import threading
 import time
 
 SPAWN_MODES = ('exec', 'fork')
+# how GraphRun.start hands a forked child its niceness (not left in the node's environment)
+NICE_ENV = 'VLC_GRAPH_RUNNER_NICE'
 
 
 def workspace_install():
@@ -98,6 +100,9 @@ def _run_entry_point(entry, argv, env, log_path):
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
+    nice = env.pop(NICE_ENV, None)
+    if nice:
+        os.nice(int(nice))
     os.environ.clear()
     os.environ.update(env)
     sys.argv = list(argv)
@@ -209,8 +214,11 @@ class GraphRun:
     def config_file(self, package, name):
         return self.install / 'share' / package / 'config' / name
 
-    def start(self, package, executable, params=None, params_files=(), name=None):
-        """Start ``install/lib/<package>/<executable>``; returns its process handle."""
+    def start(self, package, executable, params=None, params_files=(), name=None, nice=0):
+        """Start ``install/lib/<package>/<executable>``; returns its process handle.
+
+        ``nice`` > 0 lowers the process's CPU priority (set in the child before it
+        starts a thread, so its DDS threads inherit it)."""
         exe = self.install / 'lib' / package / executable
         if not exe.exists():
             raise FileNotFoundError(f'{exe} is not installed (run `make setup`)')
@@ -222,11 +230,13 @@ class GraphRun:
         name = name or executable
         log_path = self.log_dir / f'{name}.log'
         if self.spawner is not None and self.spawner.can_fork(executable):
-            proc = self.spawner.start(exe, executable, argv, self.env, log_path)
+            env = dict(self.env, **({NICE_ENV: str(int(nice))} if nice else {}))
+            proc = self.spawner.start(exe, executable, argv, env, log_path)
         else:
             log = open(log_path, 'w')
             proc = subprocess.Popen([str(exe)] + argv, env=self.env, stdout=log,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
+                                    stderr=subprocess.STDOUT, start_new_session=True,
+                                    preexec_fn=(lambda: os.nice(int(nice))) if nice else None)
             self._logs[name] = log
         self.procs[name] = proc
         return proc

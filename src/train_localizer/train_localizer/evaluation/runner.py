@@ -64,6 +64,10 @@ RECORDER_SCAN_S = 0.1     # recorder graph scan period: subscribes 0.1 s after a
 # One split per run: closing a split every second (the crash-safety default) costs the
 # recorder about a third of its CPU; a run interrupted before its bag is closed is rerun.
 RECORDER_FLUSH_S = 60.0
+# The recorder observes: it runs at a lower CPU priority than the graph it records, so a
+# frame's processing never queues behind it (its queues absorb the wait). Latency is
+# unaffected by its own delay: it is computed from the publishers' source timestamps.
+RECORDER_NICE = 10
 
 # Subscriptions the processing nodes create (topic: count); the recorder adds one per
 # recorded topic, the probe its own ('/clock', '/train/pose').
@@ -211,7 +215,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                      'discovery_interval_s': RECORDER_SCAN_S,
                                      'flush_interval_s': RECORDER_FLUSH_S},
                                     **scenario.node_params.get('bag_recorder', {})),
-                    [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')])
+                    [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')], nice=RECORDER_NICE)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
             graph.start(package, exe, scenario.node_params.get(exe, {}),
                         [graph.config_file(package, f'{exe}.yaml')])
