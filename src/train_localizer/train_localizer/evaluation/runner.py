@@ -64,10 +64,13 @@ RECORDER_SCAN_S = 0.1     # recorder graph scan period: subscribes 0.1 s after a
 # One split per run: closing a split every second (the crash-safety default) costs the
 # recorder about a third of its CPU; a run interrupted before its bag is closed is rerun.
 RECORDER_FLUSH_S = 60.0
-# The recorder observes: it runs at a lower CPU priority than the graph it records, so a
-# frame's processing never queues behind it (its queues absorb the wait). Latency is
-# unaffected by its own delay: it is computed from the publishers' source timestamps.
-RECORDER_NICE = 10
+# In lean recordings (the latency replays: no 400 Hz topics) the recorder observes at a
+# lower CPU priority than the graph it records, so a frame's processing never queues
+# behind it (its keep-last queues of 100 hold a second of its busiest topic, /clock).
+# Latency is unaffected by the recorder's own delay: it comes from the publishers'
+# source timestamps. Full recordings keep the default priority: the 400 Hz IMU topics
+# would overflow a starved recorder's queues in a quarter of a second.
+RECORDER_NICE_LEAN = 10
 
 # Subscriptions the processing nodes create (topic: count); the recorder adds one per
 # recorded topic, the probe its own ('/clock', '/train/pose').
@@ -215,7 +218,8 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                      'discovery_interval_s': RECORDER_SCAN_S,
                                      'flush_interval_s': RECORDER_FLUSH_S},
                                     **scenario.node_params.get('bag_recorder', {})),
-                    [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')], nice=RECORDER_NICE)
+                    [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
+                    nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
             graph.start(package, exe, scenario.node_params.get(exe, {}),
                         [graph.config_file(package, f'{exe}.yaml')])
