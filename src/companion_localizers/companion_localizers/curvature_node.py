@@ -22,6 +22,11 @@ Publishes (reliable, depth 10):
   at rail level at the matched chainage, yaw = the track heading there, stamped with
   the IMU sample the chainage describes. Nothing while the match is refused — on a
   straight line never: there is no curvature signal to localise with;
+* ``companion/curvature/pose_with_covariance`` (geometry_msgs/PoseWithCovarianceStamped)
+  with every such pose: the same pose, covariance = chainage variance σ²·t·tᵀ along the
+  track direction t (σ = the match's ``chainage_sigma_m``: floor, spread and short-window
+  terms) + ``lateral_sigma_m``² across it and vertically; roll and pitch unknown (1e6),
+  yaw (κ·σ)² + 1e-6. ``train_localizer`` takes it as its re-acquisition aid;
 * ``diagnostics`` (diagnostic_msgs/DiagnosticArray) every ``diagnostics_period_s``
   (steady clock): status (ok / too_short / no_curvature_signal / low_correlation /
   ambiguous / imprecise), confidence, correlation, chainage spread, sampling ratio,
@@ -37,7 +42,7 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -82,6 +87,8 @@ NODE_PARAMETERS = (
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
     ('warn_throttle_s', 5.0, _desc('Minimum interval between two warnings of one kind, s.',
                                    0.0, 600.0)),
+    ('lateral_sigma_m', 0.05, _desc('1-sigma lateral and vertical position of base_link on '
+                                    'the centreline in pose_with_covariance, m.', 1e-4, 10.0)),
 )
 
 # CurvatureConfig fields as parameters: (name, descriptor); defaults from the dataclass.
@@ -121,6 +128,10 @@ CORE_PARAMETERS = (
                                     0.0, 1.0)),
     ('offset_tolerance_1pm', _desc('Curvature offset allowed besides the bias term, 1/m.',
                                    0.0, 0.1)),
+    ('chainage_sigma_floor_m', _desc('1-sigma chainage of a full-window match without '
+                                     'spread, m.', 0.01, 1000.0)),
+    ('short_window_sigma_m', _desc('1-sigma added for a window of min_window_m (linearly 0 '
+                                   'at window_m), m.', 0.0, 1000.0)),
 )
 _CORE_DEFAULTS = {f.name: f.default for f in fields(CurvatureConfig)}
 
@@ -137,6 +148,7 @@ class CurvatureNodeConfig:
     speed_scale: float
     diagnostics_period_s: float
     warn_throttle_s: float
+    lateral_sigma_m: float
     core: CurvatureConfig
 
 
@@ -174,6 +186,8 @@ class CurvatureNode(Node):
         self._matches = 0
         self._published = 0
         self._pub_pose = self.create_publisher(PoseStamped, 'companion/curvature/pose', 10)
+        self._pub_pose_cov = self.create_publisher(
+            PoseWithCovarianceStamped, 'companion/curvature/pose_with_covariance', 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         # Sensor-data QoS (best effort) with a deep queue: a match blocks the executor for
         # tens of ms, during which a 400 Hz IMU must not overflow a depth-5 queue.
@@ -234,9 +248,32 @@ class CurvatureNode(Node):
                 continue
             position, yaw = self.core.pose(timed.match.chainage_m)
             quat = matrix_to_quat_xyzw(rpy_to_matrix(0.0, 0.0, yaw))
-            self._pub_pose.publish(conversions.pose_stamped(
-                int(round(timed.t_s * NS_PER_S)), position, quat, self.config.map_frame_id))
+            pose = conversions.pose_stamped(int(round(timed.t_s * NS_PER_S)), position, quat,
+                                            self.config.map_frame_id)
+            self._pub_pose.publish(pose)
+            self._pub_pose_cov.publish(self._with_covariance(pose, timed.match, yaw))
             self._published += 1
+
+    def _with_covariance(self, pose, match, yaw):
+        """PoseWithCovarianceStamped of ``pose`` (see the module docstring)."""
+        msg = PoseWithCovarianceStamped()
+        msg.header = pose.header
+        msg.pose.pose = pose.pose
+        sigma = float(match.chainage_sigma_m)
+        kappa = float(self.core.alignment.evaluate(match.chainage_m).curvature_1pm[0])
+        lateral = self.config.lateral_sigma_m ** 2
+        t = (math.cos(yaw), math.sin(yaw))
+        cov = [0.0] * 36
+        for i in range(2):
+            for j in range(2):
+                # σ² along t, lateral² along the left normal n = (−t_y, t_x)
+                n_i, n_j = (-t[1], t[0])[i], (-t[1], t[0])[j]
+                cov[6 * i + j] = sigma * sigma * t[i] * t[j] + lateral * n_i * n_j
+        cov[14] = lateral
+        cov[21] = cov[28] = 1e6
+        cov[35] = (kappa * sigma) ** 2 + 1e-6
+        msg.pose.covariance = cov
+        return msg
 
     def _status(self):
         """(level, message, values) of the diagnostics."""
@@ -267,6 +304,7 @@ class CurvatureNode(Node):
                        'chainage_m': f'{m.chainage_m:.3f}', 'correlation': f'{m.correlation:.4f}',
                        'second_correlation': f'{m.second_correlation:.4f}',
                        'spread_m': f'{m.spread_m:.2f}', 'ratio': f'{m.ratio:.3f}',
+                       'chainage_sigma_m': f'{m.chainage_sigma_m:.2f}',
                        'signal_std_1pm': f'{m.signal_std_1pm:.3e}',
                        'matched_length_m': f'{m.measured_length_m:.0f}',
                        'match_cpu_ms': f'{m.cpu_s * 1e3:.1f}', 'match_stamp_s': f'{last.t_s:.3f}'})

@@ -13,7 +13,7 @@ from companion_localizers import curvature_benchmark as bench
 from companion_localizers.core.curvature import (STATUS_AMBIGUOUS, STATUS_NO_SIGNAL,
                                                  STATUS_OK, STATUS_TOO_SHORT, CurvatureArray,
                                                  CurvatureConfig, CurvatureLocalizer,
-                                                 CurvatureTemplate, match)
+                                                 CurvatureTemplate, chainage_sigma, match)
 from vlc_stereo_camera.core.alignment import Alignment
 from vlc_stereo_camera.core.trajectory import MotionProfile
 
@@ -228,6 +228,29 @@ def test_rig_imu_run_is_localised_within_metres():
     assert score.ratio_median == pytest.approx(1 / 1.03, abs=0.01)
     # Refusals only while the window still holds a single curve (acquisition).
     assert set(score.statuses) <= {'ok', 'too_short', 'imprecise', 'ambiguous'}
+
+
+def test_chainage_sigma_covers_the_errors_and_grows_with_spread_and_short_windows():
+    """The 1σ each accepted match carries (train_localizer's aid variance): floor for
+    a full window, larger for a short window or a spread; on the rig run every error is
+    within 3σ."""
+    cfg = CurvatureConfig()
+    assert chainage_sigma(0.0, cfg.window_m, cfg) == pytest.approx(cfg.chainage_sigma_floor_m)
+    assert chainage_sigma(0.0, cfg.min_window_m, cfg) == pytest.approx(
+        math.hypot(cfg.chainage_sigma_floor_m, cfg.short_window_sigma_m))
+    assert chainage_sigma(3.0, cfg.window_m, cfg) == pytest.approx(
+        math.hypot(cfg.chainage_sigma_floor_m, 3.0))
+    profile = MotionProfile('constant', start_chainage_m=150.0, speed_mps=80 / 3.6)
+    inputs = bench.simulate(DEMO, profile, seed=3, imu_rate_hz=100.0,
+                            speed_scale_error=0.03, duration_s=900.0 / (80 / 3.6))
+    ok = [m for m in bench.run(inputs, DEMO) if m.match.ok]
+    assert len(ok) >= 10
+    z = [(m.match.chainage_m - np.interp(m.t_s, inputs.truth_t, inputs.truth_chainage))
+         / m.match.chainage_sigma_m for m in ok]
+    assert np.max(np.abs(z)) <= 3.0
+    refused = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, *synthetic(DEMO, 150.0, 400.0,
+                                                                            20.0)[:2], 20.0))
+    assert math.isnan(refused.chainage_sigma_m)
 
 
 def test_bag_is_read_and_scored(tmp_path):

@@ -42,8 +42,9 @@ def make_node(ros_env):
     def make(**params):
         node = CurvatureNode(context=ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
-        node.poses, node.diags = [], []
+        node.poses, node.diags, node.poses_cov = [], [], []
         node._pub_pose.publish = node.poses.append
+        node._pub_pose_cov.publish = node.poses_cov.append
         node._pub_diag.publish = node.diags.append
         nodes.append(node)
         return node
@@ -109,10 +110,36 @@ def test_node_publishes_the_matched_chainage_on_the_alignment(make_node):
     assert float(values['match_cpu_ms']) > 0.0
 
 
+def test_pose_with_covariance_carries_the_chainage_variance_along_the_track(make_node):
+    """Every accepted match also leaves as PoseWithCovarianceStamped (train_localizer's
+    re-acquisition aid): same pose, variance σ² along the track direction, the lateral
+    σ across it, and the error within 3σ."""
+    node = make_node(alignment='curved_demo', match_period_s=2.0, lateral_sigma_m=0.05)
+    t, s = feed(node, DEMO, 150.0, 800.0, 20.0, speed_error=0.05)
+    assert node.poses_cov and len(node.poses_cov) == len(node.poses)
+    for pose, pwc in zip(node.poses, node.poses_cov):
+        assert pwc.header == pose.header and pwc.pose.pose == pose.pose
+        p = pwc.pose.pose.position
+        chainage = DEMO.project([p.x], [p.y])[0][0]
+        heading = DEMO.evaluate(chainage).heading_rad[0]
+        tangent = np.array([math.cos(heading), math.sin(heading)])
+        normal = np.array([-tangent[1], tangent[0]])
+        cov = np.array(pwc.pose.covariance).reshape(6, 6)
+        var_along = tangent @ cov[:2, :2] @ tangent
+        assert 1.5 ** 2 - 1e-9 <= var_along <= 10.0 ** 2
+        assert normal @ cov[:2, :2] @ normal == pytest.approx(0.05 ** 2)
+        assert tangent @ cov[:2, :2] @ normal == pytest.approx(0.0, abs=1e-12)
+        assert cov[2, 2] == pytest.approx(0.05 ** 2)
+        stamp = pwc.header.stamp.sec + pwc.header.stamp.nanosec * 1e-9
+        assert abs(chainage - np.interp(stamp, t, s)) <= 3.0 * math.sqrt(var_along)
+    node._publish_diagnostics()
+    assert float(_values(node.diags[-1])[1]['chainage_sigma_m']) >= 1.5
+
+
 def test_straight_line_says_it_cannot_localise_and_publishes_nothing(make_node):
     node = make_node(alignment='straight')
     feed(node, Alignment.straight(), 0.0, 900.0, 20.0)
-    assert node.poses == []
+    assert node.poses == [] and node.poses_cov == []
     node._publish_diagnostics()
     status, values = _values(node.diags[-1])
     assert status.level == b'\x01' and 'cannot localise' in status.message

@@ -12,7 +12,10 @@ rig (stereo camera and ADIS16488 on one scenario, ``config/rig.yaml``). With
 Arguments: ``use_rig`` (true), ``motion_profile`` (constant), ``speed_kmh`` (60.0),
 ``start_chainage_m`` (0.0), ``seed`` (1), ``alignment`` (straight; or e.g. curved_demo, with its lamp map),
 ``lamp_map_path`` ('' = the alignment's), ``use_sim_time`` (false; true when replaying
-a bag with ``--clock``). Float arguments
+a bag with ``--clock``), ``use_curvature`` (true: also start ``curvature_node``, whose
+matches the localizer uses to re-acquire after a long lamp outage; on a straight line it
+never publishes — set false there to save its CPU), ``curvature_speed_topic``
+(``train/odometry``; a wheel tachometer's nav_msgs/Odometry if there is one). Float arguments
 need a decimal point. The same graph is started here, where the ``launch`` package is
 not installable, by ``run_evaluation`` (``train_localizer.evaluation``), which runs the
 installed executables as processes with the same parameter files.
@@ -34,6 +37,7 @@ def _config(package, name):
 
 def generate_launch_description():
     use_rig = LaunchConfiguration('use_rig')
+    use_curvature = LaunchConfiguration('use_curvature')
     sim_time = {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
                                                value_type=bool)}
     scenario = {
@@ -65,6 +69,12 @@ def generate_launch_description():
         DeclareLaunchArgument('alignment', default_value='straight',
                               description='Track alignment (straight, curved_demo, ...); '
                                           "the lamp map is the alignment's."),
+        DeclareLaunchArgument('use_curvature', default_value='true',
+                              description='Start curvature_node (re-acquisition aid after a '
+                                          'long lamp outage; silent on a straight line).'),
+        DeclareLaunchArgument('curvature_speed_topic', default_value='train/odometry',
+                              description='nav_msgs/Odometry speed source of curvature_node '
+                                          '(a wheel tachometer if available).'),
         Node(package='vlc_stereo_camera', executable='stereo_camera_node',
              parameters=[rig, _config('vlc_stereo_camera', 'stereo_camera_node.yaml'),
                          scenario, lamp_map], condition=IfCondition(use_rig), output='screen'),
@@ -85,4 +95,9 @@ def generate_launch_description():
              parameters=[_config('train_localizer', 'train_localizer_node.yaml'), sim_time,
                          lamp_map, {'alignment': LaunchConfiguration('alignment')}],
              output='screen'),
+        Node(package='companion_localizers', executable='curvature_node',
+             parameters=[_config('companion_localizers', 'curvature_node.yaml'), sim_time,
+                         {'alignment': LaunchConfiguration('alignment'),
+                          'odometry_topic': LaunchConfiguration('curvature_speed_topic')}],
+             condition=IfCondition(use_curvature), output='screen'),
     ])

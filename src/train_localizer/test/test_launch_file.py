@@ -34,7 +34,7 @@ def tree():
 
 def test_every_node_is_an_installed_executable(tree):
     nodes = [(_kw(c, 'package'), _kw(c, 'executable')) for c in _calls(tree, 'Node')]
-    assert len(nodes) == 6
+    assert len(nodes) == 7
     for package, executable in nodes:
         assert (INSTALL / 'lib' / package / executable).exists(), (package, executable)
 
@@ -50,4 +50,5 @@ def test_every_parameter_file_is_installed(tree):
 def test_declared_arguments(tree):
     declared = {c.args[0].value for c in _calls(tree, 'DeclareLaunchArgument')}
     assert declared == {'use_rig', 'use_sim_time', 'motion_profile', 'speed_kmh',
-                        'start_chainage_m', 'seed', 'alignment', 'lamp_map_path'}
+                        'start_chainage_m', 'seed', 'alignment', 'lamp_map_path',
+                        'use_curvature', 'curvature_speed_topic'}

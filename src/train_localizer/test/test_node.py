@@ -4,10 +4,12 @@
 vlc_decoder's own conversions, so the node is tested against their real field layouts.
 """
 import math
+import pathlib
 import time
 
 import numpy as np
 import pytest
+import yaml
 
 rclpy = pytest.importorskip('rclpy')
 
@@ -29,7 +31,7 @@ from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibrati
 from train_localizer import conversions  # noqa: E402
 from train_localizer.core.simulation import (SensorErrors, SensorSimulator,  # noqa: E402
                                              event_stream, from_stamp_ns)
-from train_localizer.train_localizer_node import TrainLocalizerNode  # noqa: E402
+from train_localizer.train_localizer_node import PARAMETERS, TrainLocalizerNode  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -295,3 +297,78 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
     assert raw.pose_t.size and raw.pose_t.size != result.pose_t.size
     with pytest.raises(ValueError):
         replay.load_params(overrides={'no_such_parameter': 1})
+
+
+# --- the curvature re-acquisition aid ------------------------------------------------
+
+CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'train_localizer_node.yaml'
+
+
+def test_config_file_documents_every_parameter_with_its_default():
+    values = yaml.safe_load(CONFIG.read_text())['/**']['ros__parameters']
+    expected = {name: default for name, default, _ in PARAMETERS}
+    assert set(values) == set(expected)
+    for name in expected:
+        assert values[name] == pytest.approx(expected[name]), name
+
+
+def match_msg(stamp_ns, chainage_m, sigma_m, frame='map'):
+    """A curvature match on the straight line (track along map x)."""
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp = conversions.ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame
+    msg.pose.pose.position.x = float(chainage_m)
+    msg.pose.pose.orientation.w = 1.0
+    cov = np.diag([sigma_m ** 2, 0.05 ** 2, 0.05 ** 2, 1e6, 1e6, 1e-6])
+    msg.pose.covariance = [float(v) for v in cov.ravel()]
+    return msg
+
+
+def test_curvature_match_applied_when_uncertain_and_reported(harness):
+    """A prior of 20 m 1σ and no lamp: the first match is unconfirmed, the next (consistent
+    with the distance run) is applied and the chainage σ falls to the match's; a NaN
+    match and one in another frame are skipped; the diagnostics count them."""
+    h = harness({'diagnostics_period_s': 0.1, 'use_initial_prior': True,
+                 'initial_chainage_m': 45.0, 'initial_chainage_sigma_m': 20.0,
+                 'initial_speed_known': True, 'initial_speed_mps': 10.0})
+    pub = h.test.create_publisher(PoseWithCovarianceStamped,
+                                  'companion/curvature/pose_with_covariance', 10)
+    assert h.spin_until(lambda: pub.get_subscription_count() > 0)
+    traj, events = simulated(36.0, 0.4, seed=24)
+    imu = [p for _, kind, p in events if kind == 'imu']
+    for sample in imu:
+        h.send_imu(imu_msg(sample))
+    loc, aid = h.node.localizer, h.node.curvature_aid
+    assert math.sqrt(loc.current_state().P[0, 0]) > 19.0
+
+    def send(msg, n):
+        pub.publish(msg)
+        assert h.spin_until(lambda: aid.counters.received >= n)
+
+    t1, t2 = imu[60].stamp_ns, imu[100].stamp_ns
+    truth = [float(traj.sample(from_stamp_ns(t)).chainage_m[0]) for t in (t1, t2)]
+    send(match_msg(t1, truth[0] + 1.0, 2.0), 1)
+    assert aid.last.status == 'unconfirmed'
+    send(match_msg(t2, truth[1] + 1.0, 2.0), 2)
+    assert aid.last.status == 'applied'
+    assert math.sqrt(loc.current_state().P[0, 0]) < 2.5
+    send(match_msg(t2 + 1000, math.nan, 2.0), 3)
+    assert aid.last.status == 'bad_input'
+    pub.publish(match_msg(t2 + 2000, truth[1], 2.0, frame='odom'))
+    h.spin_until(lambda: False, 0.2)
+    assert aid.counters.received == 3
+    n = len(h.got['diag'])
+    assert h.spin_until(lambda: len(h.got['diag']) > n)
+    values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
+    assert values['curvature_aids_received'] == '3'
+    assert values['curvature_aids_applied'] == '1'
+    assert values['curvature_aids_rejected'] == '1'          # the unconfirmed one
+    assert values['curvature_aid_resets'] == '0'
+    assert values['last_curvature_aid'].startswith('bad_input')
+
+
+def test_curvature_aid_can_be_switched_off(harness):
+    h = harness({'use_curvature_aid': False})
+    h.spin_until(lambda: False, 0.2)
+    assert h.node.count_subscribers('companion/curvature/pose_with_covariance') == 0
+    assert not h.node.curvature_aid.config.enabled

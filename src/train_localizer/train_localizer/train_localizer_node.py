@@ -10,7 +10,11 @@ Subscribes (relative names):
 * ``imu/data`` (sensor_msgs/Imu; best effort, depth 100): compensated attitude,
   rate and specific force from imu_compensator;
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
-  reliable, transient local, depth 1): rectified intrinsics and baseline.
+  reliable, transient local, depth 1): rectified intrinsics and baseline;
+* ``curvature_aid_topic`` (geometry_msgs/PoseWithCovarianceStamped; reliable, depth 10;
+  default ``companion/curvature/pose_with_covariance``, curvature_node's match with its
+  chainage variance) while ``use_curvature_aid``: the re-acquisition aid after a long
+  lamp outage (:mod:`train_localizer.core.reacquisition`).
 
 Publishes, all stamped with the instant they describe (reliable, depth 10):
 
@@ -53,6 +57,8 @@ from .core.integrity import IntegrityConfig, Level
 from .core.join import FrameJoiner, JoinConfig
 from .core.kalman import KalmanConfig
 from .core.localizer import Localizer, LocalizerConfig
+from .core.reacquisition import (APPLIED, BAD_INPUT, IGNORED, REJECTED_GATE, RESET,
+                                 ChainageAid, ReacquisitionConfig, chainage_measurement)
 from .core.standstill import StandstillConfig
 from .core.track import Track
 
@@ -183,6 +189,26 @@ PARAMETERS = (
                                          0.0, 2000.0)),
     ('join_timeout_s', 0.15, _desc('Longest wait for the other half of a frame, s.',
                                    0.0, 10.0)),
+    ('use_curvature_aid', True, _desc('Use curvature matches to re-acquire after a long lamp '
+                                      'outage.')),
+    ('curvature_aid_topic', 'companion/curvature/pose_with_covariance',
+     _desc('PoseWithCovarianceStamped topic of the curvature matches.')),
+    ('curvature_aid_min_state_sigma_m', 5.0, _desc('Aid only while the chainage 1-sigma '
+                                                   'exceeds this, m.', 0.0, 1e4)),
+    ('curvature_aid_max_match_sigma_m', 10.0, _desc('Matches with a larger 1-sigma are '
+                                                    'refused, m.', 0.01, 1e4)),
+    ('curvature_aid_min_match_sigma_m', 0.5, _desc('Floor on the 1-sigma of a match, m.',
+                                                   0.01, 1e4)),
+    ('curvature_aid_gate_chi2', 16.0, _desc('Mahalanobis gate of a match (chi2, 1 dof).',
+                                            1.0, 1e4)),
+    ('curvature_aid_consistency_chi2', 16.0, _desc('Two consecutive matches agree below this '
+                                                   'chi2.', 1.0, 1e4)),
+    ('curvature_aid_max_gap_s', 3.0, _desc('A longer gap between matches breaks their chain, '
+                                           's.', 0.01, 3600.0)),
+    ('curvature_aid_reset_min_matches', 5, _desc('Consistent gate-failing matches that reset '
+                                                 'the chainage; 0 = never.', 0, 1000)),
+    ('curvature_aid_reset_min_travel_m', 200.0, _desc('Running distance such a run must span, '
+                                                      'm.', 0.0, 1e5)),
 )
 
 
@@ -198,6 +224,7 @@ class TrainLocalizerNode(Node):
         self.lamp_map, self.localizer_config = self.setup(p)
         path = resolve_lamp_map_path(p['lamp_map_path'], p['alignment'] or 'straight')
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
+        self.curvature_aid = ChainageAid(self.localizer, self.reacquisition_config(p))
         self.joiner = FrameJoiner(JoinConfig(match_radius_px=p['join_match_radius_px'],
                                              timeout_s=p['join_timeout_s']))
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -222,6 +249,9 @@ class TrainLocalizerNode(Node):
         self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
         self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
         self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
+        if p['use_curvature_aid']:
+            self.create_subscription(PoseWithCovarianceStamped, p['curvature_aid_topic'],
+                                     self._on_curvature, 10)
         for side, index in (('left', 0), ('right', 1)):
             self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
                                      lambda msg, i=index: self._on_camera_info(i, msg), latched)
@@ -244,6 +274,19 @@ class TrainLocalizerNode(Node):
         config.fix.track = Track.for_lamp_map(lamp_map, p['alignment'],
                                               config.fix.track_offset_yz_m)
         return lamp_map, config
+
+    @staticmethod
+    def reacquisition_config(p):
+        """ReacquisitionConfig of a parameter dict (coasting = no fix for coast_warn_s)."""
+        return ReacquisitionConfig(
+            enabled=p['use_curvature_aid'], min_state_sigma_m=p['curvature_aid_min_state_sigma_m'],
+            coast_s=p['coast_warn_s'], max_match_sigma_m=p['curvature_aid_max_match_sigma_m'],
+            min_match_sigma_m=p['curvature_aid_min_match_sigma_m'],
+            gate_chi2=p['curvature_aid_gate_chi2'],
+            consistency_chi2=p['curvature_aid_consistency_chi2'],
+            max_match_gap_s=p['curvature_aid_max_gap_s'],
+            reset_min_matches=p['curvature_aid_reset_min_matches'],
+            reset_min_travel_m=p['curvature_aid_reset_min_travel_m'])
 
     @staticmethod
     def _config(p):
@@ -323,6 +366,36 @@ class TrainLocalizerNode(Node):
         if records is not None:
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._process(self.joiner.add_lamps(stamp, records, self._now_s()))
+
+    def _on_curvature(self, msg):
+        """A curvature match: chainage and its variance along the track, to the aid."""
+        frame = self.params['map_frame_id']
+        if msg.header.frame_id and msg.header.frame_id != frame:
+            self._warn('curvature_frame', f'{self.params["curvature_aid_topic"]}: frame '
+                       f'{msg.header.frame_id!r} is not {frame!r}: match skipped')
+            return
+        p = msg.pose.pose.position
+        cov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[:3, :3]
+        chainage, var = chainage_measurement(self.localizer_config.fix.track,
+                                             (p.x, p.y, p.z), cov)
+        stamp = conversions.stamp_to_ns(msg.header.stamp)
+        rec = self.curvature_aid.add(stamp, chainage, var)
+        if rec.status == APPLIED:
+            self.get_logger().info(
+                f'curvature match applied: chainage {rec.chainage_m:.1f} m (1-sigma '
+                f'{rec.sigma_m:.1f} m), {rec.offset_m:+.1f} m from the state (1-sigma '
+                f'{rec.state_sigma_m:.1f} m)')
+        elif rec.status == RESET:
+            self.get_logger().error(
+                f'curvature matches contradicted the state for '
+                f'{self.curvature_aid.config.reset_min_travel_m:.0f} m: chainage reset by '
+                f'{rec.offset_m:+.1f} m to {rec.chainage_m:.1f} m')
+        elif rec.status == BAD_INPUT:
+            self._warn('curvature_bad', f'{self.params["curvature_aid_topic"]}: non-finite '
+                       'pose or non-positive variance along the track: match skipped')
+        elif rec.status == REJECTED_GATE:
+            self._warn('curvature_gate', f'curvature match rejected: {rec.offset_m:+.1f} m from '
+                       f'the state (d2 {rec.d2:.0f})')
 
     def _flush_joiner(self):
         self._process(self.joiner.flush(self._now_s()))
@@ -425,6 +498,16 @@ class TrainLocalizerNode(Node):
             'lamp_records_unmatched': j.unmatched_lamp_records,
             'intrinsics': self._intrinsics_source,
         }
+        aid = self.curvature_aid.counters
+        values.update({'curvature_aids_received': aid.received,
+                       'curvature_aids_applied': aid.applied,
+                       'curvature_aids_rejected': aid.rejected,
+                       'curvature_aids_ignored': aid.counts[IGNORED],
+                       'curvature_aid_resets': aid.counts[RESET]})
+        last = self.curvature_aid.last
+        if last is not None:
+            values['last_curvature_aid'] = (f'{last.status} {last.offset_m:+.2f} m '
+                                            f'(1-sigma {last.sigma_m:.2f} m)')
         if self._last_pose is not None:
             values['last_pose_chainage_m'] = f'{self._last_pose.chainage_m:.3f}'
             values['last_pose_speed_mps'] = f'{self._last_pose.speed_mps:.3f}'

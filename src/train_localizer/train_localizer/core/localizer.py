@@ -328,6 +328,42 @@ class Localizer:
         """Newest filter state (FilterState) or None before initialisation."""
         return self._x[-1] if self._t and self._x[-1] is not None else None
 
+    def state_at(self, stamp_ns):
+        """Filter state (FilterState) at ``stamp_ns`` within the history, else None."""
+        t = int(stamp_ns)
+        if (not self.config.use_kalman or not self._t or t < self._t[0] or t > self._t[-1]
+                or self._x[-1] is None):
+            return None
+        return self._state_at(t)
+
+    def apply_chainage_aid(self, stamp_ns, chainage_m, var_m2, reset=False):
+        """An external chainage measurement at ``stamp_ns`` (re-acquisition aid, see
+        :mod:`train_localizer.core.reacquisition`, which decides whether to call this).
+
+        Inserted and replayed like a lamp fix: a chainage update with variance
+        ``var_m2``, or with ``reset`` the chainage set to ``chainage_m`` (variance
+        ``var_m2``) and, as after two lamps contradicting for ``reinit_after_s``, the
+        speed and bias uncertainties raised to ``reinit_speed_sigma_mps`` and
+        ``initial_bias_sigma_mps2`` (a state that far off had its speed wrong too).
+        Returns False, changing nothing, when there is no state at ``stamp_ns``.
+        """
+        if self.state_at(stamp_ns) is None:
+            return False
+        i = self._insert_step(int(stamp_ns))
+        if reset:
+            old = self._x[i]
+            P = np.zeros((3, 3))
+            P[0, 0] = var_m2
+            P[1, 1] = max(old.P[1, 1], self.config.integrity.reinit_speed_sigma_mps ** 2)
+            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
+            x = old.x.copy()
+            x[0] = chainage_m
+            self._add_update(i, ('set', FilterState(x, P)))
+        else:
+            self._add_update(i, ('z', H_CHAINAGE, float(chainage_m), float(var_m2)))
+        self._publish_pending = self.config.publish_on_fix
+        return True
+
     def status(self):
         """(IntegrityState, Level, message, published chainage 1σ in m or NaN)."""
         state = self.current_state()
