@@ -50,6 +50,7 @@ from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.parameters import descriptor as _desc
 from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 from . import conversions
 from .core.fix import FixConfig, RigGeometry
@@ -228,8 +229,8 @@ class TrainLocalizerNode(Node):
         self.joiner = FrameJoiner(JoinConfig(match_radius_px=p['join_match_radius_px'],
                                              timeout_s=p['join_timeout_s']))
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._last_warn = {}
-        self._suppressed = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), p['warn_throttle_s'],
+                                           clock=self._now_s)
         self._fix_ms = deque(maxlen=500)
         self._latency_ms = deque(maxlen=500)
         self._infos = [None, None]
@@ -463,14 +464,7 @@ class TrainLocalizerNode(Node):
             self._warn(event.code, event.message)
 
     def _warn(self, code, message):
-        now = self._now_s()
-        last = self._last_warn.get(code)
-        if last is not None and now - last < self.params['warn_throttle_s']:
-            self._suppressed[code] = self._suppressed.get(code, 0) + 1
-            return
-        n = self._suppressed.pop(code, 0)
-        self._last_warn[code] = now
-        self.get_logger().warning(message + (f' (+{n} more since last warning)' if n else ''))
+        self._warnings.warn(code, message)
 
     def _now_s(self):
         return self._steady.now().nanoseconds * 1e-9

@@ -43,6 +43,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 from . import conversions
 from .core.config import DecoderConfig
@@ -146,7 +147,7 @@ class VlcDecoderNode(Node):
         self.stats = collections.Counter()
         self.proc_ms = collections.deque(maxlen=300)
         self.reported_anomalies = set()
-        self._last_warning = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), WARN_THROTTLE_S)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(Image, 'stereo/left/image_raw',
@@ -176,12 +177,8 @@ class VlcDecoderNode(Node):
 
     # ------------------------------------------------------------------ input
     def _warn(self, kind, text):
-        """Warn at most once per WARN_THROTTLE_S (wall time) for each kind of problem;
-        rclpy's own throttle is per call site and would let one kind hide the others."""
-        now = time.monotonic()
-        if now - self._last_warning.get(kind, -np.inf) >= WARN_THROTTLE_S:
-            self._last_warning[kind] = now
-            self.get_logger().warning(text)
+        """Warn at most once per WARN_THROTTLE_S (wall time) for each kind of problem."""
+        self._warnings.warn(kind, text)
 
     def _on_info(self, side, msg):
         self.infos[side] = msg
