@@ -211,6 +211,19 @@ def rolling_shutter_offset(P0, velocity, normal, radius_m, K, row_time_s, exposu
     exposure mid-time of its own row (fixed point). Returns ``(offset (2,), v_true)``;
     with zero velocity the offset equals :func:`ellipse_centre_offset`.
     """
+    (offset,), v = _rolling_shutter_offsets(P0, (0.0,), velocity, normal, radius_m, K,
+                                            row_time_s, exposure_s)
+    return offset, v
+
+
+def _rolling_shutter_offsets(P0, shifts_x, velocity, normal, radius_m, K, row_time_s,
+                             exposure_s):
+    """:func:`rolling_shutter_offset` of the disc at ``P0 − (s, 0, 0)`` for each s in
+    ``shifts_x`` (the cameras of a rectified rig: the same rows, the same instants).
+
+    Returns the list of offsets (2,) and the truth row (the same for every shift: it
+    depends on the centre's y and z only).
+    """
     P0 = np.asarray(P0, float)
     V = np.asarray(velocity, float)
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
@@ -218,24 +231,29 @@ def rolling_shutter_offset(P0, velocity, normal, radius_m, K, row_time_s, exposu
     v = cy
     for _ in range(5):    # truth row: a contraction (the image moves ≪ 1 row per row)
         t = v * row_time_s + 0.5 * exposure_s
-        x, y, z = x0 + vx * t, y0 + vy * t, z0 + vz * t
+        y, z = y0 + vy * t, z0 + vz * t
         v = fy * y / z + cy
-    truth = np.array([fx * x / z + cx, v])
     # rows the moving disc may cover: the disc's largest half-height fy·R/Z, with margin
     # for the motion during the readout; rows the ellipse misses drop out below
     half_h = 1.3 * fy * radius_m / z + 3.0
     rows = np.arange(np.floor(v - half_h), np.ceil(v + half_h) + 1)
-    t = rows * row_time_s + 0.5 * exposure_s
-    m, w2 = _disc_chords(K, P0, V, t, normal, radius_m, rows)
-    inside = w2 > 0.0
-    if inside.sum() < 5:
-        return np.zeros(2), v
-    r, m, w2 = rows[inside], m[inside], w2[inside]
-    rbar = float(r.sum()) / len(r)
-    a, k, g1, g2 = _line_and_parabola(r - rbar, m, w2)
-    d0 = -g1 / (2.0 * g2)
-    observed = np.array([a + k * d0, rbar + d0])
-    return observed - truth, v
+    t_rows = rows * row_time_s + 0.5 * exposure_s
+    offsets = []
+    for shift in shifts_x:
+        x = (x0 - shift) + vx * t
+        truth = np.array([fx * x / z + cx, v])
+        m, w2 = _disc_chords(K, (x0 - shift, y0, z0), V, t_rows, normal, radius_m, rows)
+        inside = w2 > 0.0
+        if np.count_nonzero(inside) < 5:
+            offsets.append(np.zeros(2))
+            continue
+        r, m, w2 = rows[inside], m[inside], w2[inside]
+        rbar = float(r.sum()) / len(r)
+        a, k, g1, g2 = _line_and_parabola(r - rbar, m, w2)
+        d0 = -g1 / (2.0 * g2)
+        observed = np.array([a + k * d0, rbar + d0])
+        offsets.append(observed - truth)
+    return offsets, v
 
 
 def correct_pair_moving(uv_left, uv_right, velocity, normal_cam, radius_m, K, baseline_m,
@@ -258,8 +276,6 @@ def correct_pair_moving(uv_left, uv_right, velocity, normal_cam, radius_m, K, ba
         if not np.isfinite(P).all() or P[2] <= radius_m:
             return e_l, e_r, np.zeros(2), np.zeros(2), e_l[1]
         P0 = P - V * (0.5 * (c_l[1] + c_r[1]) * row_time_s + 0.5 * exposure_s)
-        off_l, v_true = rolling_shutter_offset(P0, V, normal_cam, radius_m, K, row_time_s,
-                                               exposure_s)
-        off_r, _ = rolling_shutter_offset(P0 - np.array([baseline_m, 0.0, 0.0]), V,
-                                          normal_cam, radius_m, K, row_time_s, exposure_s)
+        (off_l, off_r), v_true = _rolling_shutter_offsets(
+            P0, (0.0, baseline_m), V, normal_cam, radius_m, K, row_time_s, exposure_s)
     return e_l - off_l, e_r - off_r, off_l, off_r, v_true

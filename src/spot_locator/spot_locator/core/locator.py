@@ -168,6 +168,7 @@ class SpotLocator:
         self.geom = geometry or StereoGeometry()
         n = np.asarray(self.cfg.normal_cam, float)
         self.normal_cam = n / np.linalg.norm(n)
+        self._cos4_map = None      # (geometry key, the frame's cos⁴ map), see _cos4
 
     def process(self, left, right, speed_mps=0.0):
         """Locate lamp spot pairs in one rectified stereo pair.
@@ -336,10 +337,15 @@ class SpotLocator:
         """cos⁴ of the angle off the optical axis at each ROI pixel."""
         g = self.geom
         h, w = region.roi.shape
-        x = (np.arange(region.u0, region.u0 + w) - g.cx) / g.fx
-        y = (np.arange(region.v0, region.v0 + h) - g.cy) / g.fy
-        cos2 = 1.0 / (1.0 + x[None, :] ** 2 + y[:, None] ** 2)
-        return (cos2 * cos2).astype(np.float32)
+        u0, v0 = region.u0, region.v0
+        if 0 <= u0 and u0 + w <= g.width and 0 <= v0 and v0 + h <= g.height:
+            # the ROI's part of the whole frame's map, computed once per geometry
+            if self._cos4_map is None or self._cos4_map[0] != (g.width, g.height, g.fx,
+                                                               g.fy, g.cx, g.cy):
+                key = (g.width, g.height, g.fx, g.fy, g.cx, g.cy)
+                self._cos4_map = key, _cos4_grid(g, 0, 0, g.width, g.height)
+            return self._cos4_map[1][v0:v0 + h, u0:u0 + w]
+        return _cos4_grid(g, u0, v0, w, h)
 
     def _alpha(self, region, roi):
         closed = cm.close_stripes(np.where(region.support, roi, 0.0),
@@ -447,6 +453,14 @@ class SpotLocator:
                 n = np.mean(found, axis=0)
                 return n / np.linalg.norm(n), 'conic'
         return self.normal_cam, 'nominal'
+
+
+def _cos4_grid(g, u0, v0, w, h):
+    """cos⁴ of the angle off the optical axis on pixels u0 … u0 + w − 1, v0 … v0 + h − 1."""
+    x = (np.arange(u0, u0 + w) - g.cx) / g.fx
+    y = (np.arange(v0, v0 + h) - g.cy) / g.fy
+    cos2 = 1.0 / (1.0 + x[None, :] ** 2 + y[:, None] ** 2)
+    return (cos2 * cos2).astype(np.float32)
 
 
 def _common_centre_row(a, b):
