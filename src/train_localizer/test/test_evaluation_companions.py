@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from train_localizer.evaluation import companions, scenarios
+from train_localizer.evaluation import bag_eval, companions, scenarios
+from vlc_stereo_camera.core.alignment import Alignment
 from vlc_stereo_camera.core.lamp_map import LampMap, default_lamp_map_path
 
 
@@ -114,6 +115,97 @@ def test_tables_pool_runs_and_report_is_appended(tmp_path):
     data = json.loads((tmp_path / 'report.json').read_text())
     assert {'companions', 'outage', 'forged'} <= set(data['figures'])
     assert 'errors_m' not in data['companions'][0]['methods']['rssi']
+
+
+def test_curved_outage_scenario_darkens_curved_track_and_runs_curvature(tmp_path):
+    s = companions.curved_outage_scenario(tmp_path)
+    g = s.kind_params
+    camera = LampMap.load(g['camera_lamp_map'])
+    lit = {float(lamp.track_chainage_m) for lamp in camera.lamps}
+    assert not any(900.0 <= c < 1400.0 for c in lit) and {890.0, 1400.0} <= lit
+    assert g['full_dark_from_m'] == g['half_dark_from_m'] == 900.0
+    assert g['last_lit_before_m'] == 890.0 and g['first_lit_after_m'] == 1400.0
+    # the dark stretch holds curved track (the R 600 m arc), the run starts with a
+    # curvature window before it and ends past the first lamp after it
+    alignment = Alignment.named('curved_demo')
+    k = np.abs(alignment.evaluate(np.arange(900.0, 1400.0)).curvature_1pm)
+    assert k.max() == pytest.approx(1.0 / 600.0)
+    assert g['full_dark_from_m'] - s.start_chainage_m > 450.0
+    assert s.start_chainage_m + s.duration_s * s.speed_kmh / 3.6 > 1410.0
+    assert [exe for _, exe, _ in s.extra_nodes] == ['curvature_node']
+    assert s.node_params['curvature_node']['alignment'] == 'curved_demo'
+    assert s.node_params['imu_compensator_node']['heading_time_constant_s'] == 0.0
+    assert s.node_params['vlc_decoder_node']['lamp_map_path'] == \
+        default_lamp_map_path('curved_demo')
+    assert '/companion/curvature/pose' in s.recorded_topics()
+
+
+def _curved_outage_run(s, monkeypatch):
+    """A synthetic run of ``s``: the pose error along the track grows to 8 m in the dark
+    stretch, its published σ along the tangent to 4 m; two curvature matches 2 m off."""
+    alignment = Alignment.named('curved_demo')
+    v = s.speed_kmh / 3.6
+    truth_t = np.arange(0.0, s.duration_s, 0.02)
+    chainage = s.start_chainage_m + v * truth_t
+    truth_xyz = alignment.to_map(chainage)
+    g = s.kind_params
+    frac = np.clip((chainage - g['full_dark_from_m'])
+                   / (g['first_lit_after_m'] - g['full_dark_from_m']), 0.0, 1.0)
+    dark = (chainage >= g['full_dark_from_m']) & (chainage < g['first_lit_after_m'])
+    err = np.where(dark, 8.0 * frac, 0.01)
+    sigma = np.where(dark, np.maximum(4.0 * frac, 0.02), 0.02)
+    pose_xyz = alignment.to_map(chainage + err)
+    tan = alignment.evaluate(chainage).tangent
+    cov = np.zeros((truth_t.size, 3, 3))
+    cov[:, :2, :2] = sigma[:, None, None] ** 2 * np.einsum('ni,nj->nij', tan, tan)
+    cov += 1e-4 * np.eye(3)
+    diag = [{'integrity_state': 'tracking', 'last_pose_chainage_m': '500.0'},
+            {'integrity_state': 'degraded', 'last_pose_chainage_m': '1200.0'},
+            {'integrity_state': 'degraded', 'last_pose_chainage_m': '1405.0',
+             'curvature_aids_received': '30', 'curvature_aids_applied': '2',
+             'curvature_aids_rejected': '1', 'curvature_aids_ignored': '27',
+             'curvature_aid_resets': '0', 'last_curvature_aid': 'applied'}]
+    # the covariance topic starts before the truth (as in a recorded bag)
+    run = bag_eval.RunData(truth_t[25:], truth_xyz[25:],
+                           np.tile([0.0, 0.0, 0.0, 1.0], (truth_t.size - 25, 1)),
+                           truth_t.copy(), pose_xyz, truth_t.copy(), cov, pose_xyz,
+                           diagnostics={'train_localizer: localizer': diag,
+                                        'curvature_node: curvature': [
+                                            {'status': 'matched'}, {'status': 'matched'},
+                                            {'status': 'ambiguous'}]})
+    at = np.searchsorted(chainage, [1100.0, 1300.0, 600.0])
+    matches = (truth_t[at], alignment.to_map(chainage[at] + 2.0))
+    monkeypatch.setattr(companions, '_load_poses',
+                        lambda bag, topics: {'/companion/curvature/pose': matches})
+    return run
+
+
+def test_curved_outage_is_scored_along_the_track_with_the_aid(tmp_path, monkeypatch):
+    s = companions.curved_outage_scenario(tmp_path)
+    r = companions.score_outage(_curved_outage_run(s, monkeypatch), s)
+    assert list(r['stretches']) == ['before', 'no lamp', 'after']   # no half-dark stretch
+    dark = r['stretches']['no lamp']
+    assert 7.5 < dark['max_m'] < 8.0
+    # σ along the tangent (heading 19.5° at 1390 m: along map x it is 6 % less)
+    assert dark['max_3sigma_along_m'] == pytest.approx(12.0, rel=0.01)
+    assert dark['within_3sigma'] == 1.0
+    assert dark['integrity_states'] == {'degraded': 1}
+    assert r['stretches']['before']['max_m'] == pytest.approx(0.01, abs=1e-3)
+    end = r['end_of_dark']
+    assert 1389.0 < end['chainage_m'] < 1390.0
+    assert end['error_m'] == pytest.approx(8.0 * (end['chainage_m'] - 900.0) / 500.0, rel=0.01)
+    assert r['aid']['curvature_aids_applied'] == 2.0 and r['aid']['curvature_aid_resets'] == 0
+    assert r['curvature_matches_dark']['matches'] == 2
+    assert r['curvature_matches_dark']['matches_in_run'] == 3
+    assert r['curvature_matches_dark']['max_m'] == pytest.approx(2.0, abs=1e-3)
+    table, figures = companions.outage_table([r])
+    name = 'curved_demo, 80 km/h, 50 lamps dark'
+    assert name in figures and 'every second lamp' not in table
+    assert f'| {name} | no lamp |' in table
+    assert '**applied 2**' in table and 'resets 0' in table
+    assert 'curvature matches while dark: 2' in table and 'matched 2, ambiguous 1' in table
+    text, _ = companions.report_sections(outage=[r])
+    assert 'along the track tangent' in text and table in text
 
 
 @pytest.mark.graph

@@ -129,6 +129,10 @@ def main(argv=None):
                         help='also run the lamp-outage scenario (every second lamp dark for '
                              '200 m, then none for 500 m) and add its table')
     parser.add_argument('--outage-speed', type=float, default=companions.OUTAGE_SPEED_KMH)
+    parser.add_argument('--outage-curved-speed', type=float,
+                        default=companions.CURVED_OUTAGE_SPEED_KMH,
+                        help='outage: speed of the curved_demo outage run with curvature_node '
+                             '(the re-acquisition aid), km/h; 0: no curved run')
     parser.add_argument('--forged', action='store_true',
                         help='also run the forged-lamp pair (clean, forged) and add its table')
     parser.add_argument('--forged-speed', type=float, default=companions.FORGED_SPEED_KMH)
@@ -166,6 +170,9 @@ def main(argv=None):
             curved=args.companion_curved_s > 0)
     if args.outage:
         kinds['outage'] = [companions.outage_scenario(out / 'outage', args.outage_speed)]
+        if args.outage_curved_speed > 0:
+            kinds['outage'].append(companions.curved_outage_scenario(
+                out / 'outage', args.outage_curved_speed))
     if args.forged:
         kinds['forged'] = companions.forged_scenarios(out / 'forged', args.forged_speed)
     for group in kinds.values():

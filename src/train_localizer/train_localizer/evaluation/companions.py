@@ -15,7 +15,13 @@ Three scenario kinds of the runner (``Scenario.kind``), each scored from its bag
   removed over ``HALF_DARK_M`` and then every lamp over ``FULL_DARK_M``; the decoder and
   the localizer keep the full map. Scored: the main localizer's error and published 3σ
   before, inside and after the outage, the integrity states its diagnostics report
-  there, and where it re-acquires (its chainage σ back to the tracking level).
+  there, and where it re-acquires (its chainage σ back to the tracking level). A second
+  run on ``curved_demo`` (:func:`curved_outage_scenario`, issue 7's re-acquisition by the
+  curvature match): every lamp dark over ``CURVED_DARK_M`` from ``CURVED_DARK_FROM_M``
+  (no half-dark stretch), ``curvature_node`` beside the graph; scored alike (chainage =
+  the truth projected on the alignment, σ along the track tangent) plus the localizer's
+  curvature-aid counters, the error at the end of the dark stretch and the curvature
+  matches' own errors there.
 * ``forged`` — a clean run and the same run with one lamp broadcasting another lamp's
   valid UID (camera's lamp map only). ``LampMap`` refuses two lamps with one UID, so the
   UID copied is that of a lamp beyond the run's stretch (never in view), which the
@@ -31,6 +37,7 @@ import pathlib
 
 import numpy as np
 
+from vlc_stereo_camera.core.alignment import Alignment
 from vlc_stereo_camera.core.lamp_map import Lamp, LampMap, default_lamp_map_path
 from vlc_stereo_camera.core.vlc_protocol import uid_of
 
@@ -88,6 +95,14 @@ HALF_DARK_M = 200.0              # ... over this stretch,
 FULL_DARK_M = 500.0              # then no lamp over this one
 OUTAGE_TAIL_M = 30.0             # run on past the first lamp after the outage
 OUTAGE_SPEED_KMH = 80.0
+LAMP_VIEW_AHEAD_M = 10.0         # a lamp comes into the camera's view < 10 m ahead
+# Lamp outage on curved_demo (curvature aid): straight to 200 m, R 400 left 200-560 m
+# (clothoids 200-280, 480-560), straight 560-860, R 600 right 860-1160 (arc 920-1100),
+# straight 1160-1310, R 800 left from 1310 (clothoid 1310-1410).
+CURVED_OUTAGE_START_M = 419.5    # on the R 400 arc: 480 m of array before the outage
+CURVED_DARK_FROM_M = 900.0       # no lamp from here (on the R 600 entry clothoid) ...
+CURVED_DARK_M = 500.0            # ... to 1400 m: R 600 curve, straight, R 800 clothoid
+CURVED_OUTAGE_SPEED_KMH = 80.0
 # Forged lamp (straight track)
 FORGED_START_M = 20.5
 FORGED_END_M = 110.5
@@ -192,7 +207,7 @@ def outage_geometry(half_from_m=HALF_DARK_FROM_M, half_m=HALF_DARK_M, full_m=FUL
     """Dark lamps (chainages) and the stretches: every second lamp dark in
     [half_from, half_from + half_m), every lamp dark in [that end, + full_m)."""
     lamp_map = lamp_map or LampMap.load(default_lamp_map_path())
-    x = np.array(sorted(lamp.position_m[0] for lamp in lamp_map.lamps))
+    x = np.array(sorted(lamp.track_chainage_m for lamp in lamp_map.lamps))
     full_from = half_from_m + half_m
     full_to = full_from + full_m
     half = (x >= half_from_m) & (x < full_from)
@@ -221,6 +236,26 @@ def outage_scenario(out_dir, speed_kmh=OUTAGE_SPEED_KMH, seed=1, half_m=HALF_DAR
                  # integrity state every 0.2 s of wall time, not 1 s
                  node_params={'train_localizer_node': {'diagnostics_period_s': 0.2}})
     return configure(s, methods=('ins_beacon',), camera_lamp_map=path)
+
+
+def curved_outage_scenario(out_dir, speed_kmh=CURVED_OUTAGE_SPEED_KMH, seed=1,
+                           start_m=CURVED_OUTAGE_START_M, dark_from_m=CURVED_DARK_FROM_M,
+                           dark_m=CURVED_DARK_M):
+    """The lamp-outage run on ``curved_demo`` with ``curvature_node`` beside the graph
+    (its speed from ``train/odometry``, as the launch file); every lamp dark over
+    [``dark_from_m``, + ``dark_m``) of chainage; writes the camera's map into ``out_dir``."""
+    full = LampMap.load(default_lamp_map_path(CURVED))
+    geo = outage_geometry(half_from_m=dark_from_m, half_m=0.0, full_m=dark_m, lamp_map=full)
+    dark = set(geo['dark_lamps_m'])
+    path = _write_map([lamp for lamp in full.lamps if lamp.track_chainage_m not in dark],
+                      pathlib.Path(out_dir) / 'lamp_map_outage_curved.yaml', full)
+    end = geo['first_lit_after_m'] + OUTAGE_TAIL_M
+    s = Scenario(name=f'outage_curved_{int(speed_kmh):03d}kmh', seed=seed, kind='outage',
+                 start_chainage_m=float(start_m), speed_kmh=float(speed_kmh),
+                 duration_s=(end - start_m) / (speed_kmh / 3.6),
+                 kind_params=dict(geo, camera_lamp_map=path, track='curved'),
+                 node_params={'train_localizer_node': {'diagnostics_period_s': 0.2}})
+    return configure(s, methods=('curvature',), alignment=CURVED, camera_lamp_map=path)
 
 
 def forged_scenarios(out_dir, speed_kmh=FORGED_SPEED_KMH, seed=1):
@@ -348,9 +383,50 @@ def score_companions(run, scenario):
     return out
 
 
-def _along_sigma(run):
-    """(t, σ along map x (m)) of /train/pose_with_covariance."""
-    return run.cov_t, np.sqrt(np.maximum(run.cov_xyz[:, 0, 0], 0.0))
+def _along_sigma(run, alignment=None):
+    """(t, σ along the track (m)) of /train/pose_with_covariance: along map x, or along
+    the tangent of ``alignment`` at the true chainage."""
+    if alignment is None or alignment.is_straight or run.cov_t.size == 0:
+        return run.cov_t, np.sqrt(np.maximum(run.cov_xyz[:, 0, 0], 0.0))
+    # stamps outside the truth's span take its end (they are left out of the scores)
+    truth = metrics.interpolate_positions(np.clip(run.cov_t, run.truth_t[0], run.truth_t[-1]),
+                                          run.truth_t, run.truth_xyz)
+    s, _ = alignment.project(truth[:, 0], truth[:, 1])
+    tan = alignment.evaluate(s).tangent
+    var = np.einsum('ni,nij,nj->n', tan, run.cov_xyz[:, :2, :2], tan)
+    return run.cov_t, np.sqrt(np.maximum(var, 0.0))
+
+
+AID_KEYS = ('curvature_aids_received', 'curvature_aids_applied', 'curvature_aids_rejected',
+            'curvature_aids_ignored', 'curvature_aid_resets')
+
+
+def _aid_counters(run):
+    """The localizer's curvature-aid counters from its last diagnostics."""
+    loc = _diag(run, 'train_localizer')
+    last = loc[-1] if loc else {}
+    out = {k: _float(last, k) for k in AID_KEYS}
+    out['last_curvature_aid'] = last.get('last_curvature_aid')
+    return out
+
+
+def _curvature_matches(run, alignment, lo, hi):
+    """Accepted curvature matches (companion/curvature/pose) stamped while the true
+    chainage is in [lo, hi): count, max and mean |match chainage − true chainage|."""
+    t, xyz = _load_poses(run.bag_path, ['/companion/curvature/pose'])[
+        '/companion/curvature/pose']
+    inside = (t >= run.truth_t[0]) & (t <= run.truth_t[-1])
+    t, xyz = t[inside], xyz[inside]
+    if not t.size:
+        return {'matches': 0, 'max_m': None, 'mean_m': None}
+    truth = metrics.interpolate_positions(t, run.truth_t, run.truth_xyz)
+    s_true, _ = alignment.project(truth[:, 0], truth[:, 1])
+    s_match, _ = alignment.project(xyz[:, 0], xyz[:, 1])
+    m = (s_true >= lo) & (s_true < hi)
+    err = np.abs(s_match - s_true)[m]
+    return {'matches': int(m.sum()), 'matches_in_run': int(t.size),
+            'max_m': float(err.max()) if err.size else None,
+            'mean_m': float(err.mean()) if err.size else None}
 
 
 def score_outage(run, scenario):
@@ -359,19 +435,26 @@ def score_outage(run, scenario):
     out = {'kind': 'outage', 'speed_kmh': scenario.speed_kmh, 'geometry': {
         k: v for k, v in g.items() if k != 'dark_lamps_m'}, 'dark_lamps': len(g['dark_lamps_m']),
         'health': bag_eval.graph_health(run), 'stretches': {}}
+    track = g.get('track', 'straight')
+    alignment = Alignment.named(g.get('alignment', 'straight'))
+    if track != 'straight':
+        out['track'] = track
     if run.truth_t.size < 2 or run.pose_t.size == 0:
         return out
-    truth_s = run.truth_xyz[:, 0]   # straight track: chainage = map x
+    # chainage of the truth: map x on straight track, its projection on a curve
+    truth_s = run.truth_xyz[:, 0] if alignment.is_straight else \
+        alignment.project(run.truth_xyz[:, 0], run.truth_xyz[:, 1])[0]
     stretches = (('before', -np.inf, g['half_dark_from_m']),
                  ('every second lamp dark', g['half_dark_from_m'], g['full_dark_from_m']),
                  ('no lamp', g['full_dark_from_m'], g['full_dark_to_m']),
                  ('after', g['full_dark_to_m'], np.inf))
+    stretches = [st for st in stretches if st[2] > st[1]]   # no half-dark stretch: left out
     settle = _settle_t(run, scenario)
     keep = (run.pose_t >= settle) & (run.pose_t <= run.truth_t[-1])
     t = run.pose_t[keep]
     err, _ = metrics.pose_errors(t, run.pose_xyz[keep], run.truth_t, run.truth_xyz)
     s_at = np.interp(t, run.truth_t, truth_s)
-    ct, sigma = _along_sigma(run)
+    ct, sigma = _along_sigma(run, alignment)
     ck = (ct >= settle) & (ct <= run.truth_t[-1])
     cs = np.interp(ct[ck], run.truth_t, truth_s)
     diff = run.cov_mean[ck] - metrics.interpolate_positions(ct[ck], run.truth_t, run.truth_xyz)
@@ -410,6 +493,21 @@ def score_outage(run, scenario):
                     'max_after_reacquisition_m': float(err[post].max()) if post.any() else None})
     else:
         out['reacquired_within_one_lamp'] = False
+    # the end of the dark stretch: the last pose before the first lamp after it can be
+    # in view
+    end_s = g['first_lit_after_m'] - LAMP_VIEW_AHEAD_M
+    dark = np.nonzero((s_at >= g['full_dark_from_m']) & (s_at < end_s))[0]
+    if dark.size:
+        i = dark[-1]
+        j = np.nonzero(ck)[0]
+        k = j[np.argmin(np.abs(ct[j] - t[i]))] if j.size else None
+        out['end_of_dark'] = {'chainage_m': float(s_at[i]), 'error_m': float(err[i]),
+                              'sigma_along_m': float(sigma[k]) if k is not None else None}
+    if track != 'straight':
+        out['aid'] = _aid_counters(run)
+        out['curvature_statuses'] = _curvature_statuses(run)
+        out['curvature_matches_dark'] = _curvature_matches(
+            run, alignment, g['full_dark_from_m'], g['full_dark_to_m'])
     return out
 
 
@@ -533,6 +631,8 @@ def outage_table(results):
     lines, figures = [], {}
     for r in results:
         name = f'{r["speed_kmh"]:g} km/h, {r["dark_lamps"]} lamps dark'
+        if r.get('track', 'straight') != 'straight':
+            name = f'{CURVED}, {name}'
         figures[name] = {k: v for k, v in r.items() if k != 'health'}
         for stretch, s in r.get('stretches', {}).items():
             states = ', '.join(f'{k} {n}' for k, n in s['integrity_states'].items()) or '–'
@@ -541,9 +641,11 @@ def outage_table(results):
                         f'{_cm(s["mean_m"])} | {_cm(s["max_3sigma_along_m"])} | {within} | '
                         f'{states} |')
         g = r['geometry']
+        half = (f'outage from {g["half_dark_from_m"]:g} m (every second lamp), '
+                if g.get('full_dark_from_m', np.inf) > g['half_dark_from_m'] else '')
         if 'reacquired_at_m' in r:
             lines.append(
-                f'- {name}: outage from {g["half_dark_from_m"]:g} m (every second lamp), no lamp '
+                f'- {name}: {half}no lamp '
                 f'from {g["last_lit_before_m"]:g} m to {g["first_lit_after_m"]:g} m; along-track '
                 f'σ peaked at {_m(r["sigma_peak_m"])} m; re-acquired (σ ≤ '
                 f'{_cm(r["reacquire_sigma_level_m"])} cm) at {r["reacquired_at_m"]:.1f} m, '
@@ -552,12 +654,37 @@ def outage_table(results):
                 f'; max error after re-acquisition {_cm(r["max_after_reacquisition_m"])} cm.')
         else:
             lines.append(f'- {name}: **not re-acquired** before the end of the run.')
+        if 'aid' in r:
+            lines.append(f'- {name}: ' + _aid_line(r))
         cut = r.get('health', {}).get('bag_truncated_at_s')
         if cut is not None:
             lines.append(f'- {name}: **bag incomplete** — its truth stops {cut:.1f} s into the '
                          'run (the recorder stopped receiving); the stretches after that are '
                          'not measured.')
     return '\n'.join(rows + [''] + lines), figures
+
+
+def _aid_line(r):
+    """The curvature aid through a curved outage, one sentence."""
+    a, e = r['aid'], r.get('end_of_dark')
+    cm = r.get('curvature_matches_dark') or {}
+
+    def n(v):
+        return '–' if v is None else f'{v:.0f}'
+    end = (f'at {e["chainage_m"]:.1f} m (the last pose before the first lamp after the '
+           f'outage can be in view) error {_m(e["error_m"])} m, published 3σ along track '
+           f'{_m(None if e["sigma_along_m"] is None else 3.0 * e["sigma_along_m"])} m'
+           if e else 'no pose at the end of the dark stretch')
+    statuses = ', '.join(f'{k} {v}' for k, v in sorted(
+        r.get('curvature_statuses', {}).items(), key=lambda kv: -kv[1])) or '–'
+    return (f'curvature aid (localizer diagnostics at the end of the run): received '
+            f'{n(a.get("curvature_aids_received"))}, **applied '
+            f'{n(a.get("curvature_aids_applied"))}**, rejected '
+            f'{n(a.get("curvature_aids_rejected"))}, ignored '
+            f'{n(a.get("curvature_aids_ignored"))}, resets {n(a.get("curvature_aid_resets"))}'
+            f' (last: {a.get("last_curvature_aid") or "–"}); curvature matches while dark: '
+            f'{cm.get("matches", 0)}, chainage error max {_m(cm.get("max_m"))} m, mean '
+            f'{_m(cm.get("mean_m"))} m (curvature_node statuses: {statuses}); {end}.')
 
 
 def forged_table(results):
@@ -626,7 +753,13 @@ def report_sections(companions=(), outage=(), forged=()):
                   'The camera renders a lamp map without the dark lamps; decoder and localizer '
                   'keep the full map. Stretches by the true chainage; integrity states from '
                   'the localizer\'s diagnostics (every 0.2 s), placed by its '
-                  '`last_pose_chainage_m`.', '', table]
+                  '`last_pose_chainage_m`.' + (
+                      ' On `curved_demo` the chainage is the truth projected on the '
+                      'alignment, the σ the one along the track tangent, and curvature_node '
+                      'runs beside the graph (speed from `train/odometry`) for the '
+                      'localizer\'s re-acquisition aid.'
+                      if any(r.get('track', 'straight') != 'straight' for r in outage)
+                      else ''), '', table]
     if forged:
         table, figures['forged'] = forged_table(forged)
         f = forged[0]
