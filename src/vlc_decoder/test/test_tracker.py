@@ -1,14 +1,17 @@
 """Frame pipeline: stereo pairing, tracking, right-image fallback; fed by the rig too."""
+import pathlib
+
 import numpy as np
 import pytest
 
 from vlc_decoder.core import synth
 from vlc_decoder.core.assembly import CONFIRMED
-from vlc_decoder.core.config import DecoderConfig
-from vlc_decoder.core.tracker import LampTracker, combine_profiles, pair_spots
+from vlc_decoder.core.config import DecoderConfig, signal_timing_from_params_file
+from vlc_decoder.core.tracker import LampTracker, combine_profiles, pair_spots, path_prediction
 from vlc_decoder.core.spots import detect
 
 CFG = DecoderConfig()
+NODE_PARAMS = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'vlc_decoder_node.yaml'
 
 
 class MapStub:
@@ -142,7 +145,7 @@ def test_a_confirmed_track_never_carries_its_uid_to_another_lamp():
 rig = pytest.importorskip('vlc_stereo_camera.core.renderer')
 
 
-def rig_pass(speed_kmh, n_lamps, seed, **renderer_kw):
+def rig_pass(speed_kmh, n_lamps, seed, cfg=CFG, **renderer_kw):
     from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
     from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
     lamps = LampMap.load(resolve_lamp_map_path(''))
@@ -150,7 +153,7 @@ def rig_pass(speed_kmh, n_lamps, seed, **renderer_kw):
                                           speed_mps=speed_kmh / 3.6), Vibration(seed=seed))
     renderer = rig.StereoRenderer(rig.RendererConfig(**renderer_kw), lamps, trajectory,
                                   seed=seed)
-    tracker = LampTracker(CFG, lamps)
+    tracker = LampTracker(cfg, lamps)
     n = int((12 + 10 * (n_lamps - 1)) / (speed_kmh / 3.6) * 30)
     for k in range(n):
         frame = renderer.render(k)
@@ -185,3 +188,52 @@ def test_rig_high_speed_never_a_wrong_uid():
         for rec in records:
             if rec.state >= CONFIRMED:
                 assert rec.uid == _truth_uid(frame, rec)
+
+
+def test_path_prediction_moves_a_new_track_as_earlier_lamps_moved_from_its_spot_height():
+    """A lamp's image speeds up along its path (x1.5 per frame): one observation gives
+    no velocity, but an earlier lamp's path, matched by spot height (vibration offsets
+    the paths by tens of pixels), gives the next step."""
+    t = np.arange(6) / 30.0
+    steps = 50.0 * 1.5 ** np.arange(5)
+    pos = np.zeros((6, 2))
+    pos[1:, 0] = -np.cumsum(steps)
+    pos[1:, 1] = 0.5 * np.cumsum(steps)
+    pos += [1270.0, 60.0]
+    heights = 30.0 * 1.2 ** np.arange(6)
+    paths = [(t, pos, heights)]
+    # a lamp as tall as the earlier lamp in its third frame, wherever it is
+    move = path_prediction(paths, heights[2], 1 / 30.0)
+    np.testing.assert_allclose(move, pos[3] - pos[2], atol=1e-6)
+    # half-way in height between two observations: half-way along that step's timing
+    move = path_prediction(paths, 0.5 * (heights[1] + heights[2]), 1 / 30.0)
+    assert steps[1] < np.hypot(*move) < steps[2]
+    # two frames on, from the first frame's height
+    np.testing.assert_allclose(path_prediction(paths, heights[0], 2 / 30.0),
+                               pos[2] - pos[0], atol=1e-6)
+    # no earlier lamp was this small or this big: no prior
+    assert path_prediction(paths, 0.5 * heights[0], 1 / 30.0) is None
+    assert path_prediction(paths, 2.0 * heights[-1], 1 / 30.0) is None
+
+
+def test_rig_at_120_kmh_every_lamp_is_one_track_and_confirmed_in_view():
+    """Graph timing, 120 km/h, run 8: lamp 0x1005 is in view only 5 frames, its spot
+    moving 100-300 px per frame. Without a motion prior for new tracks each of its
+    frames started a track (none confirmed), and stale one-frame tracks near the image
+    entry took the next lamp's first spots."""
+    timing = {k: v for k, v in signal_timing_from_params_file(
+        NODE_PARAMS).items() if k in ('chip_rate_hz', 'exposure_s')}
+    cfg = DecoderConfig(**timing)
+    tracks, confirmed = {}, {}
+    for frame, records in rig_pass(120.0, 6, seed=8, cfg=cfg, **timing):
+        for truth in frame.truth:
+            near = [r for r in records if r.left is not None and truth.in_left and np.hypot(
+                r.left.u - truth.uv_left[0], r.left.v - truth.uv_left[1]) < 40]
+            for rec in near:
+                tracks.setdefault(truth.uid, set()).add(rec.track_id)
+                if rec.state >= CONFIRMED:
+                    assert rec.uid == truth.uid, 'wrong UID'
+                    confirmed.setdefault(truth.uid, frame.index)
+    assert set(tracks) == set(range(0x1001, 0x1007))
+    assert all(len(ids) == 1 for ids in tracks.values()), tracks
+    assert set(confirmed) == set(tracks)

@@ -4,8 +4,10 @@ Left and right rows are exposed at the same instants (rectified stereo, one stam
 lamp's two spots carry the same chips: the pair's row profiles are averaged, and when
 one spot is cut by the image border (its row sums then miss part of the disc) the other
 image's profile is used alone (paper: the right image stands in for the left one).
-Tracks follow spots from frame to frame by a constant-velocity prediction in the left
-image and own one :class:`~vlc_decoder.core.assembly.PacketAssembler` each.
+Tracks follow spots from frame to frame by a constant-acceleration prediction in the
+left image (new tracks: moved as earlier lamps moved from the same spot height,
+:func:`path_prediction`) and own one :class:`~vlc_decoder.core.assembly.PacketAssembler`
+each.
 """
 from dataclasses import dataclass, field
 import itertools
@@ -24,6 +26,17 @@ ANOMALY = 3   # decode state of a CRC-valid UID that the lamp map does not know
 PAIR_ROW_TOLERANCE_PX = 3.0
 # frames unseen after which a track's association gate stops growing
 MAX_GATE_GROWTH = 3
+# path prior: a track seen fewer than this many times (no acceleration yet) is moved as
+# earlier lamps moved from the same spot height
+PATH_PRIOR_MAX_SEEN = 3
+# the prediction is the median of the latest this many earlier paths
+PATH_PRIOR_PATHS = 3
+# paths of tracks seen at least this many times are kept, for this long after their
+# last observation (s)
+PATH_MIN_OBSERVATIONS = 3
+PATH_MEMORY_S = 5.0
+# observations kept per track for its path (a lamp at standstill stays in view for ever)
+PATH_MAX_POINTS = 40
 
 
 @dataclass
@@ -58,6 +71,8 @@ class _Track:
     missed: int = 0
     seen: int = 0
     anomaly_reported: bool = False
+    # (stamp_ns, u, v, spot height px) of the latest observations: the lamp's path
+    history: list = field(default_factory=list)
 
     def predict(self, stamp_ns):
         """Predicted left-image position (px) and the part of it that the acceleration
@@ -79,6 +94,49 @@ class _Track:
                                  if self.seen >= 2 and self.missed == 0 else np.zeros(2))
             self.velocity = velocity
         self.u, self.v, self.stamp_ns = u, v, stamp_ns
+
+    def path(self):
+        """(times s, positions (n, 2) px, spot heights px) of the latest observations."""
+        h = np.asarray(self.history, dtype=float).reshape(-1, 4)
+        return h[:, 0] * 1e-9, h[:, 1:3], h[:, 3]
+
+
+def path_prediction(paths, height_px, dt_s):
+    """How far a lamp whose spot is ``height_px`` tall moves in ``dt_s``, from earlier
+    lamps' paths through the image.
+
+    Every lamp of the line crosses the image on a similar path; its image speeds up
+    along it as the train closes in (by half per frame at 120 km/h in its last frames),
+    so one observation gives no velocity and a constant-velocity guess from two is far
+    off. The spot's height gives the range, and so the point of an earlier lamp's path
+    (``paths``: list of (times s (n,), positions (n, 2) px, heights (n,) px), oldest
+    first) where that lamp was as far: the displacement is that path's ``dt_s`` on from
+    there (linear between its observations, extrapolated on its last segment). Vibration
+    moves the paths some tens of pixels apart, so they are matched by height, not
+    position. The median over the latest ``PATH_PRIOR_PATHS`` paths whose heights
+    cover ``height_px`` within ±10 %. Returns the displacement (2,) px or None.
+    """
+    moves = []
+    for times, pos, heights in reversed(paths):       # the latest first
+        if len(times) < 2 or not (0.9 * heights.min() <= height_px <= 1.1 * heights.max()):
+            continue
+        # the first segment reaching the height (heights grow along the path, not
+        # strictly: the envelope fit is noisy)
+        i = int(np.clip(np.searchsorted(np.maximum.accumulate(heights), height_px) - 1,
+                        0, len(times) - 2))
+        dh = heights[i + 1] - heights[i]
+        lam = float(np.clip((height_px - heights[i]) / dh, 0.0, 1.0)) if dh > 0 else 0.0
+        tau = times[i] + lam * (times[i + 1] - times[i])
+        here = pos[i] + lam * (pos[i + 1] - pos[i])
+        target = tau + dt_s
+        j = int(np.clip(np.searchsorted(times, target) - 1, 0, len(times) - 2))
+        frac = (target - times[j]) / max(times[j + 1] - times[j], 1e-9)
+        moves.append(pos[j] + frac * (pos[j + 1] - pos[j]) - here)
+        if len(moves) == PATH_PRIOR_PATHS:
+            break
+    if not moves:
+        return None
+    return np.median(np.array(moves), axis=0)
 
 
 def _row_overlap(a, b):
@@ -167,11 +225,14 @@ class LampTracker:
         self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
         self.last_stamp_ns = None
         self.resets = 0              # times the tracks were dropped for a stamp jump
+        # (last stamp ns, (times, positions, heights)) of dropped tracks: their paths
+        self._paths = []
 
     def reset(self):
         """Forget every track (and its fragments); track ids keep counting up."""
         self.tracks = []
         self.last_stamp_ns = None
+        self._paths = []
         self.resets += 1
 
     def stamp_jumped_back(self, stamp_ns):
@@ -217,6 +278,9 @@ class LampTracker:
                     track.disparity = disparity
             track.missed = 0
             track.seen += 1
+            spot = spot_l if spot_l is not None else spot_r
+            track.history.append((stamp_ns, u, v, spot.height_px))
+            del track.history[:-PATH_MAX_POINTS]
             rows, level, weight, source = combine_profiles(spot_l, spot_r)
             was_confirmed = track.assembler.state == CONFIRMED
             track.assembler.add(stamp_ns, rows, level, weight)
@@ -226,8 +290,34 @@ class LampTracker:
         for track in self.tracks:
             if id(track) not in seen and track.stamp_ns != stamp_ns:
                 track.missed += 1
-        self.tracks = [t for t in self.tracks if t.missed <= self.cfg.track_max_missed_frames]
+        kept = []
+        for track in self.tracks:
+            if track.missed <= self.cfg.track_max_missed_frames:
+                kept.append(track)
+            elif track.seen >= PATH_MIN_OBSERVATIONS:
+                self._paths.append((track.stamp_ns, track.path()))
+        self.tracks = kept
+        self._paths = [p for p in self._paths if stamp_ns - p[0] <= PATH_MEMORY_S * 1e9]
         return records
+
+    def _predict(self, track, stamp_ns):
+        """A track's predicted left-image position (px) and its expected step (px).
+
+        A track seen fewer than PATH_PRIOR_MAX_SEEN times has no acceleration yet (and
+        after one frame no velocity): it is moved as earlier lamps moved from the same
+        spot height (:func:`path_prediction`), when there are such lamps.
+        """
+        dt = (stamp_ns - track.stamp_ns) * 1e-9
+        if track.seen < PATH_PRIOR_MAX_SEEN:
+            recent = self._paths + [(t.stamp_ns, t.path()) for t in self.tracks
+                                    if t is not track and t.seen >= PATH_MIN_OBSERVATIONS]
+            paths = [p for _, p in sorted(recent, key=lambda item: item[0])]
+            move = (path_prediction(paths, track.history[-1][3], dt)
+                    if paths and track.history else None)
+            if move is not None:
+                return np.array([track.u, track.v]) + move, float(np.hypot(*move))
+        pred, accel_step = track.predict(stamp_ns)
+        return pred, float(np.linalg.norm(track.velocity)) * dt + accel_step
 
     def _left_position(self, spot_l, spot_r, track):
         if spot_l is not None and spot_r is not None:
@@ -241,9 +331,7 @@ class LampTracker:
         """Greedy nearest-neighbour association of observations to tracks."""
         pairs = []
         for t_index, track in enumerate(self.tracks):
-            pred, accel_step = track.predict(stamp_ns)
-            dt = (stamp_ns - track.stamp_ns) * 1e-9
-            step = float(np.linalg.norm(track.velocity)) * dt + accel_step
+            pred, step = self._predict(track, stamp_ns)
             for o_index, (spot_l, spot_r) in enumerate(observations):
                 u, v, _ = self._left_position(spot_l, spot_r, track)
                 spot = spot_l if spot_l is not None else spot_r
