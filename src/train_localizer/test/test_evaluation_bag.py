@@ -126,3 +126,4 @@ def test_severity_of_a_degraded_run():
     assert not bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'compensator_gaps': 1})
     assert bag_eval.severely_degraded({'camera_lag_max_s': 0.3})
     assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'spot_frames_dropped': 6})
+    assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'localizer_records_too_old': 9})

@@ -162,6 +162,22 @@ def test_delayed_fixes_give_the_in_order_result():
     np.testing.assert_allclose(a.P, b.P, rtol=1e-6, atol=1e-15)
 
 
+def test_records_later_than_the_history_are_dropped_and_counted():
+    """Perception more than history_s behind the IMU: its records are dropped, counted
+    (records_too_old, for diagnostics and the evaluation's graph health), never applied."""
+    traj, events = scenario(80.0, 1.5, seed=5)
+    loc = make(history_s=0.2)
+    late = []
+    for arrival, kind, payload in events:
+        key = arrival + (0.3 if kind == 'frame' and arrival > 0.8 else 0.0)
+        late.append((key, kind, payload))
+    late.sort(key=lambda e: (e[0], e[1] == 'frame'))
+    _, fixes, _ = feed(loc, late)
+    dropped = sum(f.status == 'too_old' for f in fixes)
+    assert dropped > 0
+    assert loc.monitor.counters.records_too_old == dropped
+
+
 def test_gating_rejects_an_injected_wrong_lamp_and_reports_it():
     traj, events = scenario(60.0, 4.0, seed=6)
     injected = []

@@ -487,6 +487,7 @@ class TrainLocalizerNode(Node):
             'reinitialisations': c.reinitialisations,
             'time_resets': c.time_resets,
             'imu_rejected': c.imu_rejected,
+            'records_too_old': c.records_too_old,
             'frames_joined': j.joined,
             'frames_without_uids': j.spots_without_lamps,
             'lamp_records_unmatched': j.unmatched_lamp_records,

@@ -119,6 +119,7 @@ class IntegrityCounters:
     reinitialisations: int = 0
     time_resets: int = 0
     imu_rejected: int = 0
+    records_too_old: int = 0      # lamp records older than the history window (late inputs)
 
 
 def mahalanobis2(innovation_m, variance_m2):

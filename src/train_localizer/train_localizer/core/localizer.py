@@ -683,6 +683,7 @@ class Localizer:
         cfg = self.config
         mon = self.monitor
         if self._t and t_m < self._t[-1] - int(cfg.history_s * NS_PER_S):
+            mon.counters.records_too_old += 1
             report.fixes.append(FixRecord(t_m, obs.uid, None, 'too_old'))
             report.events.append(Event(Level.WARN, 'fix_too_old',
                                        'lamp record older than the history window dropped'))

@@ -213,6 +213,8 @@ def graph_health(run):
         'decoder_skipped': sum(last('vlc_decoder', k) for k in (
             'skipped_bad_image', 'skipped_size_mismatch', 'skipped_unpaired',
             'skipped_out_of_order')),
+        # perception more than the localizer's history behind the IMU: records dropped
+        'localizer_records_too_old': last('train_localizer', 'records_too_old'),
     }
     health['degraded'] = bool(health['camera_lag_max_s'] > 0.1 or any(
         v for k, v in health.items() if k != 'camera_lag_max_s'))
@@ -225,7 +227,7 @@ def severely_degraded(health):
     return bool(health.get('camera_lag_max_s', 0.0) > 0.2 or any(
         health.get(k, 0) > 5 for k in ('spot_frames_dropped', 'decoder_skipped',
                                        'compensator_gaps', 'compensator_dropped',
-                                       'imu_samples_skipped')))
+                                       'imu_samples_skipped', 'localizer_records_too_old')))
 
 
 def heading_series(run, rate_hz=50.0):
