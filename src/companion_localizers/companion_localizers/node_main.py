@@ -6,6 +6,7 @@ nodes); SIGINT or an external shutdown ends it with 0.
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+from vlc_stereo_camera.process import spin_until_shutdown
 
 #: Exit code of an invalid configuration.
 EXIT_INVALID_CONFIG = 2
@@ -21,7 +22,7 @@ def run_node(node_class, logger_name, args=None):
         rclpy.try_shutdown()
         return EXIT_INVALID_CONFIG
     try:
-        rclpy.spin(node)
+        spin_until_shutdown(lambda: rclpy.spin(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

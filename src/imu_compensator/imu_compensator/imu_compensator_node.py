@@ -50,7 +50,7 @@ from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorCo
 from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 DEG = math.pi / 180.0
@@ -375,7 +375,7 @@ def main(args=None):
         return EXIT_INVALID_CONFIG
     try:
         freeze_start_up_objects()
-        rclpy.spin(node)
+        spin_until_shutdown(lambda: rclpy.spin(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -47,7 +47,6 @@ from rcl_interfaces.msg import ParameterType
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -60,7 +59,7 @@ from .core.detection import DetectConfig
 from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from .core.matching import MatchConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 
 EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0
@@ -440,9 +439,7 @@ def main(args=None):
         sys.exit(EXIT_INVALID_CONFIG)
     freeze_start_up_objects()
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_shutdown(lambda: rclpy.spin(node))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

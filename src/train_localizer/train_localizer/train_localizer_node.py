@@ -42,14 +42,13 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 from . import conversions
@@ -532,7 +531,7 @@ def main(args=None):
     try:
         node = TrainLocalizerNode()
         freeze_start_up_objects()
-        rclpy.spin(node)
+        spin_until_shutdown(lambda: rclpy.spin(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, OSError) as exc:

@@ -42,7 +42,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.process import freeze_start_up_objects
+from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 from . import conversions
@@ -292,7 +292,7 @@ def main(args=None):
     try:
         node = VlcDecoderNode()
         freeze_start_up_objects()
-        rclpy.spin(node)
+        spin_until_shutdown(lambda: rclpy.spin(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except StartupError as error:

@@ -31,6 +31,7 @@ import rclpy.logging
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from vlc_stereo_camera.process import spin_until_shutdown
 
 from .conversions import message_class, qos_from_rclpy, qos_to_rclpy
 from .params import declare
@@ -179,7 +180,7 @@ def main(args=None) -> None:
     node = None
     try:
         node = BagRecorderNode()
-        rclpy.spin(node)
+        spin_until_shutdown(lambda: rclpy.spin(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, FileExistsError) as exc:
