@@ -110,7 +110,7 @@ def test_lane_moves_to_another_valid_domain():
 
 
 def test_lane_pace_drops_under_load_and_recovers():
-    lane = runner.Lane(domain_id=1, epoch_s=0.0)
+    lane = runner.Lane(domain_id=1, epoch_s=0.0, min_pace=0.3)
     lane.slow_down(severe=False)
     assert lane.pace == pytest.approx(0.8)
     lane.slow_down()
@@ -128,6 +128,7 @@ def test_lane_pace_drops_under_load_and_recovers():
     assert paces[0] == pytest.approx(0.36 * 1.02)     # then probing 2 % per clean run
     assert 0.4 < paces[9] < 0.5
     assert lane.pace == 1.0                           # ... up to real time
+    assert runner.Lane(domain_id=1, epoch_s=0.0).min_pace == pytest.approx(0.15)
     lane.slow_down(severe=False)
     assert lane.ceiling == pytest.approx(0.9) and lane.pace == pytest.approx(0.8)
 
