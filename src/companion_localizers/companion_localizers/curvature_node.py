@@ -47,8 +47,6 @@ from nav_msgs.msg import Odometry
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rcl_interfaces.msg import ParameterType
@@ -57,6 +55,7 @@ from sensor_msgs.msg import Imu
 from vlc_stereo_camera.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw, rpy_to_matrix
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.process import spin_until_shutdown
 
 from . import conversions
 from .core.curvature import (STATUS_NO_SIGNAL, STATUS_OK, STATUS_TOO_SHORT, CurvatureConfig,
@@ -342,14 +341,9 @@ def main(args=None):
         rclpy.try_shutdown()
         return
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except _rclpy.RCLError:
-        # SIGINT during a long callback (a match): rclpy's signal handler shut the context
-        # down before the executor built its next wait set. Anything else is an error.
-        if rclpy.ok():
-            raise
+        # SIGINT during a long callback (a match) shuts the context down before the
+        # executor builds its next wait set: a stop, handled by spin_until_shutdown.
+        spin_until_shutdown(lambda: rclpy.spin(node))
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

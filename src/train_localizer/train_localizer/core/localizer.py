@@ -351,14 +351,7 @@ class Localizer:
             return False
         i = self._insert_step(int(stamp_ns))
         if reset:
-            old = self._x[i]
-            P = np.zeros((3, 3))
-            P[0, 0] = var_m2
-            P[1, 1] = max(old.P[1, 1], self.config.integrity.reinit_speed_sigma_mps ** 2)
-            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
-            x = old.x.copy()
-            x[0] = chainage_m
-            self._add_update(i, ('set', FilterState(x, P)))
+            self._set_chainage(i, chainage_m, var_m2, keep_speed=False)
         else:
             self._add_update(i, ('z', H_CHAINAGE, float(chainage_m), float(var_m2)))
         self._publish_pending = self.config.publish_on_fix
@@ -887,21 +880,30 @@ class Localizer:
             anchor_t, anchor = old.t_ns, f
         return chain[::-1]
 
+    def _set_chainage(self, i, chainage_m, var_m2, keep_speed):
+        """Restart the chainage at step ``i``: ``chainage_m`` with variance ``var_m2``,
+        uncorrelated with the rest; ``keep_speed`` keeps the speed and bias covariance,
+        else their variances are raised to at least ``reinit_speed_sigma_mps`` and
+        ``initial_bias_sigma_mps2`` (a state that far off had its speed wrong too).
+        Returns the state it replaced."""
+        old = self._x[i]
+        P = np.zeros((3, 3))
+        P[0, 0] = var_m2
+        if keep_speed:
+            P[1:, 1:] = old.P[1:, 1:]
+        else:
+            P[1, 1] = max(old.P[1, 1], self.config.integrity.reinit_speed_sigma_mps ** 2)
+            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
+        x = old.x.copy()
+        x[0] = chainage_m
+        self._add_update(i, ('set', FilterState(x, P)))
+        return old
+
     def _reinitialise(self, t_m, fix, decision, report):
         """Restart the chainage at ``fix``; after a long contradiction also the speed."""
         icfg = self.config.integrity
         i = self._insert_step(t_m)
-        old = self._x[i]
-        P = np.zeros((3, 3))
-        P[0, 0] = fix.var_m2
-        if decision == 'offset':
-            P[1:, 1:] = old.P[1:, 1:]
-        else:
-            P[1, 1] = max(old.P[1, 1], icfg.reinit_speed_sigma_mps ** 2)
-            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
-        x = old.x.copy()
-        x[0] = fix.chainage_m
-        self._add_update(i, ('set', FilterState(x, P)))
+        old = self._set_chainage(i, fix.chainage_m, fix.var_m2, keep_speed=decision == 'offset')
         self._systematic_var = fix.var_systematic_m2
         self._publish_pending = True
         self.monitor.on_reinitialised()
