@@ -37,6 +37,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.msg import ParameterType
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -50,6 +51,7 @@ from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorCo
 from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.polled import PolledSubscription
 from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
@@ -143,6 +145,9 @@ NODE_PARAMETERS = (
            'covariance (errors the filter does not model), rad.', ptype=_ARRAY)),
     ('heading_aiding_std_rad', 1.0 * DEG,
      _desc('1 sigma of a heading_aiding message without covariance, rad.', 1e-6, 1.0)),
+    ('poll_period_s', 0.005, _desc('imu/data_raw is taken in batches this often (steady '
+                                   'clock), off the executor; 0 = a callback per sample, s.',
+                                   0.0, 0.05)),
     ('diagnostics_period_s', 1.0, _desc('Wall-clock period of diagnostics, s.', 0.05, 60.0)),
     ('warn_throttle_s', 1.0, _desc('Minimum wall-clock interval between repeated warnings '
                                    'of one kind, s.', 0.0, 3600.0)),
@@ -158,6 +163,7 @@ class NodeConfig:
     publish_decimation: int
     orientation_std_floor_rad: tuple
     heading_aiding_std_rad: float
+    poll_period_s: float
     diagnostics_period_s: float
     warn_throttle_s: float
     compensator: CompensatorConfig
@@ -220,7 +226,7 @@ def read_config(node):
         orientation_std_floor_rad=_triple('orientation_std_floor_rad',
                                           v['orientation_std_floor_rad'], non_negative=True),
         heading_aiding_std_rad=v['heading_aiding_std_rad'],
-        diagnostics_period_s=v['diagnostics_period_s'],
+        poll_period_s=v['poll_period_s'], diagnostics_period_s=v['diagnostics_period_s'],
         warn_throttle_s=v['warn_throttle_s'], compensator=comp)
 
 
@@ -249,7 +255,13 @@ class ImuCompensatorNode(Node):
 
         self._pub = self.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
+        if cfg.poll_period_s > 0.0:
+            # 400 Hz: taken in batches, one executor wake-up per batch (vlc_stereo_camera.polled)
+            self._raw = PolledSubscription(self, Imu, 'imu/data_raw', IMU_QOS)
+            self.create_timer(cfg.poll_period_s, self._on_poll,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        else:
+            self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
         self.create_subscription(PoseWithCovarianceStamped, 'heading_aiding',
                                  self._on_heading_aiding, 10)
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics)
@@ -261,6 +273,10 @@ class ImuCompensatorNode(Node):
             f'{fc.heading_offset_rad / DEG:.3f} deg at speed')
 
     # ------------------------------------------------------------------ callbacks
+    def _on_poll(self):
+        for msg in self._raw.take_all():
+            self._on_imu(msg)
+
     def _on_imu(self, msg):
         cfg = self.config
         if not self._frame_warned and msg.header.frame_id != cfg.imu_frame_id:

@@ -59,7 +59,8 @@ from .core.detection import DetectConfig
 from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from .core.matching import MatchConfig
 from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_stereo_camera.process import (freeze_start_up_objects, keep_large_buffers,
+                                       spin_until_shutdown)
 
 EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0
@@ -429,6 +430,7 @@ class SpotLocatorNode(Node):
 def main(args=None):
     # one core: the stereo pair is processed in a single thread by design
     cv2.setNumThreads(1)
+    keep_large_buffers()
     rclpy.init(args=args)
     try:
         node = SpotLocatorNode()

@@ -48,6 +48,7 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_stereo_camera.polled import PolledSubscription
 from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
@@ -82,6 +83,10 @@ PARAMETERS = (
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
     ('publish_on_fix', True, _desc('Also publish right after each fix (lower latency).')),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
+    ('imu_poll_period_s', 0.01, _desc('imu/data and camera_info are taken in batches this '
+                                      'often (steady clock) and before every frame, off '
+                                      'the executor; 0 = a callback per IMU message, s.',
+                                      0.0, 0.1)),
     ('warn_throttle_s', 2.0, _desc('Minimum interval between two warnings of one kind, s.',
                                    0.0, 600.0)),
     ('use_range_constraint', True, _desc('Constrained GLS fix (track + stereo range); false = '
@@ -246,16 +251,21 @@ class TrainLocalizerNode(Node):
         self.pub_odom = self.create_publisher(Odometry, 'train/odometry', estimate_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'heading_aiding', 10)
-        self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
+        # The 400 Hz IMU (and the per-frame camera_info, of which only the latest matters)
+        # bypass the executor: taken in batches by _drain() (vlc_stereo_camera.polled).
+        poll_s = p['imu_poll_period_s']
+        self._imu_polled = (PolledSubscription(self, Imu, 'imu/data', IMU_QOS)
+                            if poll_s > 0.0 else None)
+        if self._imu_polled is None:
+            self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
         self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
         self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
         if p['use_curvature_aid']:
             self.create_subscription(PoseWithCovarianceStamped, p['curvature_aid_topic'],
                                      self._on_curvature, 10)
-        for side, index in (('left', 0), ('right', 1)):
-            self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
-                                     lambda msg, i=index: self._on_camera_info(i, msg), latched)
-        self.create_timer(0.02, self._flush_joiner, clock=self._steady)
+        self._info_polled = [PolledSubscription(self, CameraInfo, f'stereo/{side}/camera_info',
+                                                latched) for side in ('left', 'right')]
+        self.create_timer(poll_s if poll_s > 0.0 else 0.02, self._on_poll, clock=self._steady)
         self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
                           clock=self._steady)
         self.get_logger().info(
@@ -346,6 +356,20 @@ class TrainLocalizerNode(Node):
         report = self.localizer.add_imu(conversions.imu_from_msg(msg))
         self._publish(report)
 
+    def _drain(self):
+        """Hand the localizer every IMU sample and camera_info received so far."""
+        for index, sub in enumerate(self._info_polled):
+            infos = sub.take_all()
+            if infos:
+                self._on_camera_info(index, infos[-1])
+        if self._imu_polled is not None:
+            for msg in self._imu_polled.take_all():
+                self._on_imu(msg)
+
+    def _on_poll(self):
+        self._drain()
+        self._flush_joiner()
+
     def _records(self, msg, topic, required=()):
         try:
             records = conversions.cloud_to_records(msg)
@@ -358,12 +382,14 @@ class TrainLocalizerNode(Node):
     def _on_spots(self, msg):
         records = self._records(msg, 'spots/pairs', SPOT_FIELDS)
         if records is not None:
+            self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._process(self.joiner.add_spots(stamp, records, self._now_s()))
 
     def _on_lamps(self, msg):
         records = self._records(msg, 'vlc/lamps')
         if records is not None:
+            self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._process(self.joiner.add_lamps(stamp, records, self._now_s()))
 
@@ -379,6 +405,7 @@ class TrainLocalizerNode(Node):
         chainage, var = chainage_measurement(self.localizer_config.fix.track,
                                              (p.x, p.y, p.z), cov)
         stamp = conversions.stamp_to_ns(msg.header.stamp)
+        self._drain()
         rec = self.curvature_aid.add(stamp, chainage, var)
         if rec.status == APPLIED:
             self.get_logger().info(

@@ -42,12 +42,14 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_stereo_camera.process import (freeze_start_up_objects, keep_large_buffers,
+                                       spin_until_shutdown)
 from vlc_stereo_camera.throttled_log import ThrottledWarnings
 
 from . import conversions
 from .core.config import DecoderConfig
-from .core.tracker import ANOMALY, LampTracker
+from .core import synth
+from .core.tracker import ANOMALY, CONFIRMED, LampTracker
 
 WARN_THROTTLE_S = 2.0
 
@@ -120,7 +122,39 @@ NODE_PARAMETERS = (
                                     'dropped.', 1, 1000)),
     ('diagnostics_period_s', 1.0, _float('Diagnostics period, s (wall time).', 0.05, 3600.0)),
     ('hardware_id', 'stereo_camera', _str('hardware_id of the diagnostics status.')),
+    ('warm_up', True, _bool('Decode a few synthetic striped frames before subscribing, so '
+                            'first-call costs do not fall on the first real frames.')),
 )
+
+
+def warm_up(cfg, lamp_map):
+    """Run the tracker's per-frame code paths on synthetic striped stereo frames.
+
+    The first calls of OpenCV's contour and morphology kernels and of numpy's ufunc loops
+    for each dtype, the first header search, assembly and CRC, cost tens of milliseconds:
+    without this they fell on the first real frames (decoder latency 50-100 ms on the first
+    five frames of a real-time replay). A throwaway tracker decodes four frames of a near
+    lamp (160 px, confirmed from the second frame on; a UID of the map, so the lookup runs
+    too) and a far one (24 px, partial); the node's own tracker starts empty. Returns the
+    number of confirmed records in the last frame.
+    """
+    tracker = LampTracker(cfg, lamp_map)
+    uids = ([lamp.uid for lamp in lamp_map.lamps[:2]] if lamp_map is not None else [])
+    uids += [synth.worked_example_uid()] * (2 - len(uids))
+    signals = [synth.LampSignal(uid, chip_rate_hz=cfg.chip_rate_hz, off_level=cfg.off_level)
+               for uid in uids]
+    rng = np.random.default_rng(0)
+    records = []
+    for k in range(4):
+        t0_s = k / 30.0
+        lamps = [synth.SyntheticLamp(signals[0], u_left=700.0 + 20.0 * k, v=360.0,
+                                     disparity_px=60.0, width_px=160.0, height_px=160.0),
+                 synth.SyntheticLamp(signals[1], u_left=300.0 + 2.0 * k, v=200.0,
+                                     disparity_px=10.0, width_px=24.0, height_px=24.0)]
+        left, right = synth.render_stereo(lamps, t0_s, row_time_s=cfg.row_time_s,
+                                          exposure_s=cfg.exposure_s, rng=rng)
+        records = tracker.process(round(t0_s * 1e9), left, right)
+    return sum(r.state == CONFIRMED for r in records)
 
 
 class VlcDecoderNode(Node):
@@ -140,6 +174,10 @@ class VlcDecoderNode(Node):
         self.max_pending = self.get_parameter('max_pending_stamps').value
         self.hardware_id = self.get_parameter('hardware_id').value
         lamp_map = self._load_lamp_map(self.lamp_map_path)
+        if self.get_parameter('warm_up').value:
+            start = time.perf_counter()
+            warm_up(self.cfg, lamp_map)
+            self.get_logger().info(f'warmed up in {(time.perf_counter() - start) * 1e3:.0f} ms')
         self.tracker = LampTracker(self.cfg, lamp_map)
         self.infos = [None, None]
         self.pending = collections.OrderedDict()   # stamp_ns -> [left msg, right msg]
@@ -286,6 +324,7 @@ class VlcDecoderNode(Node):
 
 def main(args=None):
     cv2.setNumThreads(1)
+    keep_large_buffers()
     rclpy.init(args=args)
     node = None
     code = 0

@@ -1,5 +1,45 @@
 """Process-level start-up shared by every node of the graph."""
+import ctypes
+import ctypes.util
 import gc
+import os
+
+# glibc mallopt() parameters (malloc.h)
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+# Large enough for a 1280x720 rgb8 frame (2.8 MB) and the middleware's copies of it.
+LARGE_BUFFER_MMAP_THRESHOLD = 16 << 20
+# Free heap kept before it is returned to the kernel: a few frames' worth.
+LARGE_BUFFER_TRIM_THRESHOLD = 64 << 20
+
+
+def keep_large_buffers():
+    """Make glibc reuse freed frame-sized buffers instead of unmapping them.
+
+    Every received or published image passes through several buffers of its size (the
+    middleware's sample, the deserialised C message, the Python ``array``). glibc serves
+    a request above its mmap threshold with a fresh ``mmap`` and unmaps it on free, so
+    each buffer costs a page fault per 4 KiB page on first touch: 710 minor faults and
+    2.6 ms CPU per 0.9 MB mono8 image taken by a subscriber, measured with two processes
+    at 30 Hz on the project's Fast DDS profile; with the thresholds below the buffers come
+    from (and return to) the heap: 68 faults, 1.2 ms. A node taking both images of every
+    frame saves about 2.8 ms per frame, on the critical path to the pose. The process's
+    heap keeps up to ``LARGE_BUFFER_TRIM_THRESHOLD`` of freed memory. Returns True when
+    the allocator took both settings (False off glibc, or with the environment variable
+    ``VLC_KEEP_LARGE_BUFFERS=0``, which keeps glibc's defaults).
+    """
+    if os.environ.get('VLC_KEEP_LARGE_BUFFERS', '1') == '0':
+        return False
+    name = ctypes.util.find_library('c')
+    try:
+        libc = ctypes.CDLL(name or 'libc.so.6')
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    mallopt.restype = ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, LARGE_BUFFER_MMAP_THRESHOLD)
+                and mallopt(_M_TRIM_THRESHOLD, LARGE_BUFFER_TRIM_THRESHOLD))
 
 
 def freeze_start_up_objects():

@@ -59,6 +59,7 @@ from .core.camera import CameraIntrinsics, StereoRig
 from .core.lamp_map import LampMap, resolve_lamp_map_path
 from .core.renderer import RendererConfig, StereoRenderer
 from .core.sensor_noise import OpticsConfig, SensorConfig
+from .process import keep_large_buffers
 from .rig_params import declare_scenario_parameters
 from .parameters import descriptor as _desc
 
@@ -418,6 +419,7 @@ class StereoCameraNode(Node):
 
 def main(args=None):
     cv2.setNumThreads(1)
+    keep_large_buffers()
     rclpy.init(args=args)
     try:
         node = StereoCameraNode()

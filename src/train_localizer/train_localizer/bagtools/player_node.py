@@ -35,6 +35,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import ReaderError
 from rosgraph_msgs.msg import Clock
 
+from vlc_stereo_camera.process import keep_large_buffers
+
 from .bagio import bag_summary, bag_time_range, iter_raw
 from .conversions import message_class, qos_to_rclpy
 from .params import declare
@@ -181,6 +183,7 @@ class BagPlayerNode(Node):
 
 
 def main(args=None) -> None:
+    keep_large_buffers()
     rclpy.init(args=args)
     node = None
     try:

@@ -31,7 +31,7 @@ import rclpy.logging
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from vlc_stereo_camera.process import spin_until_shutdown
+from vlc_stereo_camera.process import keep_large_buffers, spin_until_shutdown
 
 from .conversions import message_class, qos_from_rclpy, qos_to_rclpy
 from .params import declare
@@ -176,6 +176,7 @@ class BagRecorderNode(Node):
 
 
 def main(args=None) -> None:
+    keep_large_buffers()
     rclpy.init(args=args)
     node = None
     try:

@@ -2,7 +2,8 @@
 
 Independent of the rig's transmitter model (``vlc_stereo_camera.core.vlc_protocol``), so
 that decoder and rig are checked against the protocol text, not against each other.
-Nothing here is used by the decoder itself.
+Nothing here is used by the decoding itself; the node's warm-up
+(``vlc_decoder_node.warm_up``) decodes a few frames of ``render_stereo``.
 """
 from dataclasses import dataclass
 
