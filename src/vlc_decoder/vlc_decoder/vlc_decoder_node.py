@@ -133,7 +133,7 @@ def warm_up(cfg, lamp_map):
     The first calls of OpenCV's contour and morphology kernels and of numpy's ufunc loops
     for each dtype, the first header search, assembly and CRC, cost tens of milliseconds:
     without this they fell on the first real frames (decoder latency 50-100 ms on the first
-    five frames of a real-time replay). A throwaway tracker decodes four frames of a near
+    five frames of a real-time replay). A throwaway tracker decodes three frames of a near
     lamp (160 px, confirmed from the second frame on; a UID of the map, so the lookup runs
     too) and a far one (24 px, partial); the node's own tracker starts empty. Returns the
     number of confirmed records in the last frame.
@@ -145,13 +145,15 @@ def warm_up(cfg, lamp_map):
                for uid in uids]
     rng = np.random.default_rng(0)
     records = []
-    for k in range(4):
+    for k in range(3):
         t0_s = k / 30.0
-        lamps = [synth.SyntheticLamp(signals[0], u_left=700.0 + 20.0 * k, v=360.0,
+        lamps = [synth.SyntheticLamp(signals[0], u_left=400.0 + 20.0 * k, v=180.0,
                                      disparity_px=60.0, width_px=160.0, height_px=160.0),
-                 synth.SyntheticLamp(signals[1], u_left=300.0 + 2.0 * k, v=200.0,
+                 synth.SyntheticLamp(signals[1], u_left=150.0 + 2.0 * k, v=60.0,
                                      disparity_px=10.0, width_px=24.0, height_px=24.0)]
-        left, right = synth.render_stereo(lamps, t0_s, row_time_s=cfg.row_time_s,
+        # a 640x360 frame: the same code paths as a full one at a quarter of the rendering
+        left, right = synth.render_stereo(lamps, t0_s, width=640, height=360,
+                                          row_time_s=cfg.row_time_s,
                                           exposure_s=cfg.exposure_s, rng=rng)
         records = tracker.process(round(t0_s * 1e9), left, right)
     return sum(r.state == CONFIRMED for r in records)

@@ -45,7 +45,7 @@ GROUP_PREFIX = 'ablations/'
 
 
 def ablation_groups(points_m=STATIC_POINTS_M, trials=2, speeds_kmh=SPEEDS_KMH, runs=2,
-                    cells=4, observe_s=3.0, realtime_factor=1.0, variants=VARIANTS):
+                    cells=4, observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0, variants=VARIANTS):
     """``{'ablations/<variant>/static': [Scenario], 'ablations/<variant>/dynamic': …}``."""
     groups = {}
     for name, _, params in variants:

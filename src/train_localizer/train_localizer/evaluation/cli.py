@@ -86,7 +86,7 @@ def main(argv=None):
                         'companions: --companions --outage --forged')
     parser.add_argument('--out', default='out/evaluation', help='bags, logs and report')
     parser.add_argument('--trials', type=int, default=10, help='static trials per point')
-    parser.add_argument('--observe-s', type=float, default=3.0,
+    parser.add_argument('--observe-s', type=float, default=scenarios.STATIC_OBSERVE_S,
                         help='static: simulated seconds observed before the result')
     parser.add_argument('--speeds', type=int, nargs='+', default=[20, 40, 60, 80, 100, 120])
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')

@@ -43,7 +43,7 @@ from vlc_stereo_camera.core.vlc_protocol import uid_of
 
 from . import bag_eval, metrics
 from ..bagtools.bagio import open_bag
-from .scenarios import LAMP_X_M, Scenario
+from .scenarios import LAMP_X_M, STATIC_OBSERVE_S, Scenario
 
 CURVED = 'curved_demo'
 #: (key, label, pose topic, diagnostics status prefix, max_gap_s)
@@ -164,7 +164,7 @@ def configure(scenario, methods=tuple(COMPANION_NODES), alignment='straight',
 # --- scenario lists ---------------------------------------------------------------
 
 def companion_scenarios(points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH, cells=CELLS,
-                        observe_s=3.0, curved_duration_s=CURVED_DURATION_S,
+                        observe_s=STATIC_OBSERVE_S, curved_duration_s=CURVED_DURATION_S,
                         curved_speed_kmh=CURVED_SPEED_KMH, seed=1, curved=True):
     """Static and dynamic scenarios, straight and (``curved``) on ``curved_demo``, each
     with every companion method."""

@@ -108,7 +108,14 @@ class Scenario:
         return list(dict.fromkeys(topics))
 
 
-def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=3.0, first_seed=1):
+# Static trials stand this long before the result is taken: the first pose comes within
+# 0.45 s at every point of the protocol (8 s trials, 2026-12-01), so the result is the
+# filter after >= 1.5 s of fixes.
+STATIC_OBSERVE_S = 2.0
+
+
+def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=STATIC_OBSERVE_S,
+                     first_seed=1):
     return [Scenario(name=f'static_{d:04.1f}m_seed{seed}', motion_profile='stationary',
                      start_chainage_m=LAMP_X_M - d, seed=seed, duration_s=observe_s,
                      observe_s=observe_s, static_point_m=d)
