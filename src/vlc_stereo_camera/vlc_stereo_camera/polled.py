@@ -33,9 +33,9 @@ class PolledSubscription:
     """``node.create_subscription`` without a callback: messages wait in the
     subscription's queue (its QoS depth, keep-last) until :meth:`take_all`."""
 
-    def __init__(self, node, msg_type, topic, qos):
+    def __init__(self, node, msg_type, topic, qos, raw=False):
         self._sub = node.create_subscription(msg_type, topic, _never_called, qos,
-                                             callback_group=_NeverWaited())
+                                             callback_group=_NeverWaited(), raw=raw)
 
     @property
     def subscription(self):
@@ -45,8 +45,12 @@ class PolledSubscription:
     def topic_name(self):
         return self._sub.topic_name
 
-    def take_all(self, limit=None):
-        """The messages received since the last call, oldest first (at most ``limit``)."""
+    def take_all(self, limit=None, with_info=False):
+        """The messages received since the last call, oldest first (at most ``limit``);
+        CDR ``bytes`` for a ``raw`` subscription. ``with_info``: ``(message, info)`` pairs,
+        ``info`` the middleware's message info (``source_timestamp``,
+        ``received_timestamp``, ns), as a subscription callback taking two arguments gets.
+        """
         sub = self._sub
         out = []
         with sub.handle:
@@ -54,7 +58,7 @@ class PolledSubscription:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 if taken is None:
                     break
-                out.append(taken[0])
+                out.append(taken if with_info else taken[0])
         return out
 
 

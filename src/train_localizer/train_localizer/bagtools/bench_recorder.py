@@ -49,6 +49,9 @@ def main() -> None:
     parser.add_argument('--storage', default='mcap', choices=('mcap', 'sqlite3'))
     parser.add_argument('--compression', default='none', choices=('none', 'zstd'))
     parser.add_argument('--flush-interval-s', type=float, default=1.0)
+    parser.add_argument('--poll-period-s', type=float, default=None,
+                        help="the recorder's poll_period_s (default: its own; 0 = a "
+                             'callback per message)')
     parser.add_argument('--keep', action='store_true', help='keep the bag (default: delete)')
     args = parser.parse_args()
 
@@ -68,7 +71,9 @@ def main() -> None:
     recorder = subprocess.Popen(
         [str(exe), '--ros-args', '-p', f'output:={out}', '-p', f'storage:={args.storage}',
          '-p', f'compression:={args.compression}', '-p',
-         f'flush_interval_s:={args.flush_interval_s}', '-p', f'topics:=[{",".join(topics)}]'],
+         f'flush_interval_s:={args.flush_interval_s}', '-p', f'topics:=[{",".join(topics)}]']
+        + ([] if args.poll_period_s is None else
+           ['-p', f'poll_period_s:={float(args.poll_period_s)}']),
         stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
 
     ctx = Context()

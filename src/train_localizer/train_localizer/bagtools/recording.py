@@ -37,6 +37,7 @@ class RecorderConfig:
     queue_depth: int = 100
     compression: str = 'none'
     max_backlog_mb: float = 1000.0
+    poll_period_s: float = 0.02
 
     def __post_init__(self) -> None:
         if self.storage not in STORAGES:
@@ -53,6 +54,8 @@ class RecorderConfig:
             raise ValueError('queue_depth must be >= 1')
         if not self.max_backlog_mb > 0:
             raise ValueError('max_backlog_mb must be > 0')
+        if not self.poll_period_s >= 0:
+            raise ValueError('poll_period_s must be >= 0')
 
 
 def default_output_name(now: datetime.datetime | None = None) -> str:
