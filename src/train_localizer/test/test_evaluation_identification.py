@@ -87,3 +87,13 @@ def test_spot_cut_by_the_border_belongs_to_its_lamp():
     assert out['wrong_uids'] == 0
     # B is in view but not detected; A's centre is outside both images: not counted
     assert out['frames'] == [[B, 10.86, False, False]]
+
+
+def test_a_lamp_glimpsed_only_far_away_is_not_passed():
+    frames = [[0x1005, 8.0, True, False], [0x1005, 6.0, True, True], [0x1005, 1.5, True, True],
+              [0x1006, 11.6, True, False], [0x1006, 9.7, True, False]]   # the run ends
+    first = {str(0x1005): 6.0, str(0x1006): None}
+    assert identification.passed_lamps(frames, first) == (1, 1)
+    # the same lamp reached within 5 m and never identified is a passed, missed lamp
+    frames.append([0x1006, 4.0, True, False])
+    assert identification.passed_lamps(frames, first) == (2, 1)

@@ -73,6 +73,9 @@ def test_detail_identification_latency_and_health_tables():
     assert '-5.00 … +7.50' in table
     table, by_dist, figures = report.identification_table(_dynamic_results())
     assert figures[20]['lamps_identified'] == 2 and figures[120]['lamps_identified'] == 1
+    # only 4102 was seen closer than 5 m (passed); at 120 km/h it was not identified
+    assert figures[20]['lamps_passed'] == 1 and figures[20]['lamps_passed_identified'] == 1
+    assert figures[120]['lamps_passed'] == 1 and figures[120]['lamps_passed_identified'] == 0
     assert figures[20]['first_confirmation_median_m'] == pytest.approx(5.0)
     assert figures[20]['identified_frame_rate'] == pytest.approx(2 / 3)
     assert '| 20 | – | – | – | – | 100 % | 100 % | 0 % |' in by_dist

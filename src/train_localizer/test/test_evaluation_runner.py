@@ -1,7 +1,9 @@
 """Runner pieces without a graph: fork spawner, lanes, readiness counts, ablation set."""
 import json
 import os
+import signal
 import subprocess
+import sys
 import time
 
 import pytest
@@ -49,6 +51,37 @@ def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):
     codes = graph.stop_all()
     # signal.pause interrupted: KeyboardInterrupt (exit 1), not a SIGKILL (-9)
     assert codes == {'tool': 1}
+    assert 'KeyboardInterrupt' in graph.log('tool')
+
+
+@pytest.mark.parametrize('forked', [True, False])
+def test_sigint_stops_the_child_even_when_the_runner_ignores_it(tmp_path, forked):
+    # an evaluation started as a script's background job runs with SIGINT ignored, which
+    # its children would inherit (across exec too) and then never stop on the runner's
+    # SIGINT; the fork server is started here, after SIG_IGN, as in that case
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    spawner = graph_runner.ForkSpawner([]) if forked else None
+    try:
+        graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                      spawner=spawner)
+        exe = tmp_path / 'lib' / 'pkg' / 'tool'
+        exe.parent.mkdir(parents=True, exist_ok=True)
+        if forked:
+            spawner.entry_points = {'tool': 'signal:pause'}
+            exe.touch()
+        else:
+            exe.write_text(f'#!{sys.executable}\nimport signal\nsignal.pause()\n')
+            exe.chmod(0o755)
+        graph.start('pkg', 'tool')
+        with pytest.raises(subprocess.TimeoutExpired):
+            graph.procs['tool'].wait(0.5)
+        codes = graph.stop_all()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    # KeyboardInterrupt (exit 1 from the fork server's child; an interpreter that dies of
+    # an uncaught KeyboardInterrupt re-raises SIGINT: -2), not the runner's SIGKILL (-9)
+    # after the SIGINT went unheard
+    assert codes['tool'] in (1, -signal.SIGINT), graph.log('tool')
     assert 'KeyboardInterrupt' in graph.log('tool')
 
 

@@ -21,6 +21,7 @@ Two ways to start a node (``spawn``):
   fork server ends, so a killed evaluation leaves no node running.
 """
 import ctypes
+import functools
 import importlib
 from importlib import metadata
 import multiprocessing
@@ -103,6 +104,9 @@ def _run_entry_point(entry, argv, env, log_path):
     nice = env.pop(NICE_ENV, None)
     if nice:
         os.nice(int(nice))
+    # The runner stops nodes with SIGINT: give it back its KeyboardInterrupt even when the
+    # evaluation was started with SIGINT ignored (a background job of a script, nohup)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     os.environ.clear()
     os.environ.update(env)
     sys.argv = list(argv)
@@ -118,6 +122,16 @@ def _run_entry_point(entry, argv, env, log_path):
         usage = resource.getrusage(resource.RUSAGE_SELF)
         with open(log_path + '.cpu', 'w', encoding='utf-8') as stream:
             stream.write(f'{usage.ru_utime:.3f} {usage.ru_stime:.3f}\n')
+
+
+def _exec_child_setup(nice):
+    """In an exec'ed node before exec: its niceness, and SIGINT back to its default (an
+    ignored signal stays ignored across exec, and Python then installs no
+    KeyboardInterrupt: a node started by an evaluation running as a script's background
+    job would not stop on the runner's SIGINT)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if nice:
+        os.nice(int(nice))
 
 
 def read_cpu_seconds(log_dir):
@@ -236,7 +250,7 @@ class GraphRun:
             log = open(log_path, 'w')
             proc = subprocess.Popen([str(exe)] + argv, env=self.env, stdout=log,
                                     stderr=subprocess.STDOUT, start_new_session=True,
-                                    preexec_fn=(lambda: os.nice(int(nice))) if nice else None)
+                                    preexec_fn=functools.partial(_exec_child_setup, nice))
             self._logs[name] = log
         self.procs[name] = proc
         return proc

@@ -92,6 +92,27 @@ def identification(run, match_radius_px=100.0):
             'anomalies': anomalies}
 
 
+# A lamp counts as passed when the run saw it closer than this: the train went by it
+# while it was in view. A lamp glimpsed only farther out (the next lamp at the FOV edge,
+# 9.5-13 m ahead, when a run ends) was never passed.
+PASSED_WITHIN_M = 5.0
+
+
+def passed_lamps(frames, first_confirmation_m, within_m=PASSED_WITHIN_M):
+    """(lamps passed, of them identified) of one run.
+
+    ``frames``: rows [uid, along_track_m, detected, identified]; ``first_confirmation_m``:
+    {uid (int or str): distance or None} — the lamps in view.
+    """
+    nearest = {}
+    for uid, along, _, _ in frames:
+        nearest[int(uid)] = min(nearest.get(int(uid), np.inf), float(along))
+    passed = [int(u) for u in first_confirmation_m if nearest.get(int(u), np.inf) < within_m]
+    identified = [u for u in passed if first_confirmation_m.get(u, first_confirmation_m.get(
+        str(u))) is not None]
+    return len(passed), len(identified)
+
+
 def success_by_distance(frames, edges_m=tuple(range(0, 11))):
     """Detection and identification rates per along-track distance bin.
 

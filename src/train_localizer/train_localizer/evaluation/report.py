@@ -201,9 +201,10 @@ def dynamic_detail_table(results):
 
 def identification_table(results):
     """Lamp identification per speed (decoder output against the rig's true spots)."""
-    rows = ['| speed (km/h) | lamps in view | identified | first confirmation: median '
-            '(m before the lamp) | min (m) | identified frames | wrong UIDs accepted | '
-            'anomalies |', '|---|---|---|---|---|---|---|---|']
+    rows = ['| speed (km/h) | lamps in view | identified | lamps passed (seen closer than '
+            f'{identification.PASSED_WITHIN_M:g} m) | passed and identified | first '
+            'confirmation: median (m before the lamp) | min (m) | identified frames | wrong '
+            'UIDs accepted | anomalies |', '|---|---|---|---|---|---|---|---|---|---|']
     dist_rows = ['| speed (km/h) | ' + ' | '.join(f'{lo}–{lo + 1} m' for lo in range(10))
                  + ' |', '|---|' + '---|' * 10]
     figures = {}
@@ -216,15 +217,20 @@ def identification_table(results):
         frames = [f for i in ids for f in i['frames']]
         wrong = sum(i['wrong_uids'] for i in ids)
         anomalies = sum(i['anomalies'] for i in ids)
+        passed = [identification.passed_lamps(i['frames'], i['first_confirmation_m'])
+                  for i in ids]
         bins = identification.success_by_distance(frames)
         frame_rate = float(np.mean([f[3] for f in frames])) if frames else None
         fig = {'lamps_in_view': len(first), 'lamps_identified': len(confirmed),
+               'lamps_passed': sum(p for p, _ in passed),
+               'lamps_passed_identified': sum(i for _, i in passed),
                'first_confirmation_median_m': float(np.median(confirmed)) if confirmed else None,
                'first_confirmation_min_m': float(np.min(confirmed)) if confirmed else None,
                'identified_frame_rate': frame_rate, 'wrong_uids_accepted': wrong,
                'anomalies': anomalies, 'by_distance': bins}
         figures[v] = fig
         rows.append(f'| {v} | {fig["lamps_in_view"]} | {fig["lamps_identified"]} | '
+                    f'{fig["lamps_passed"]} | {fig["lamps_passed_identified"]} | '
                     f'{_fmt(fig["first_confirmation_median_m"])} | '
                     f'{_fmt(fig["first_confirmation_min_m"])} | '
                     f'{_fmt(frame_rate, 1, 100)} % | {wrong} | {anomalies} |')
