@@ -54,6 +54,22 @@ def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):
     assert 'KeyboardInterrupt' in graph.log('tool')
 
 
+def _pausing_tool(tmp_path, spawner, script):
+    """A graph whose executable ``pkg/tool`` waits until signalled: forked from
+    ``spawner`` (``signal.pause``), or, without one, exec'ed from ``script``."""
+    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                  spawner=spawner)
+    exe = tmp_path / 'lib' / 'pkg' / 'tool'
+    exe.parent.mkdir(parents=True, exist_ok=True)
+    if spawner is not None:
+        spawner.entry_points = {'tool': 'signal:pause'}
+        exe.touch()
+    else:
+        exe.write_text(script)
+        exe.chmod(0o755)
+    return graph
+
+
 @pytest.mark.parametrize('forked', [True, False])
 def test_sigint_stops_the_child_even_when_the_runner_ignores_it(tmp_path, forked):
     # an evaluation started as a script's background job runs with SIGINT ignored, which
@@ -62,16 +78,8 @@ def test_sigint_stops_the_child_even_when_the_runner_ignores_it(tmp_path, forked
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     spawner = graph_runner.ForkSpawner([]) if forked else None
     try:
-        graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
-                                      spawner=spawner)
-        exe = tmp_path / 'lib' / 'pkg' / 'tool'
-        exe.parent.mkdir(parents=True, exist_ok=True)
-        if forked:
-            spawner.entry_points = {'tool': 'signal:pause'}
-            exe.touch()
-        else:
-            exe.write_text(f'#!{sys.executable}\nimport signal\nsignal.pause()\n')
-            exe.chmod(0o755)
+        graph = _pausing_tool(tmp_path, spawner,
+                              f'#!{sys.executable}\nimport signal\nsignal.pause()\n')
         graph.start('pkg', 'tool')
         with pytest.raises(subprocess.TimeoutExpired):
             graph.procs['tool'].wait(0.5)
@@ -87,16 +95,8 @@ def test_sigint_stops_the_child_even_when_the_runner_ignores_it(tmp_path, forked
 
 @pytest.mark.parametrize('forked', [True, False])
 def test_nice_lowers_the_priority_of_the_child_only(spawner, tmp_path, forked):
-    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
-                                  spawner=spawner if forked else None)
-    exe = tmp_path / 'lib' / 'pkg' / 'tool'
-    exe.parent.mkdir(parents=True, exist_ok=True)
-    if forked:
-        spawner.entry_points = {'tool': 'signal:pause'}
-        exe.touch()
-    else:
-        exe.write_text('#!/bin/sh\nexec sleep 30\n')
-        exe.chmod(0o755)
+    graph = _pausing_tool(tmp_path, spawner if forked else None,
+                          '#!/bin/sh\nexec sleep 30\n')
     proc = graph.start('pkg', 'tool', nice=7)
     base = os.getpriority(os.PRIO_PROCESS, 0)
     try:
