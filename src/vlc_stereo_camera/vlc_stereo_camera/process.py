@@ -1,6 +1,5 @@
 """Process-level start-up shared by every node of the graph."""
 import ctypes
-import ctypes.util
 import gc
 import os
 
@@ -30,10 +29,10 @@ def keep_large_buffers():
     """
     if os.environ.get('VLC_KEEP_LARGE_BUFFERS', '1') == '0':
         return False
-    name = ctypes.util.find_library('c')
     try:
-        libc = ctypes.CDLL(name or 'libc.so.6')
-        mallopt = libc.mallopt
+        # the symbols the process already has: the allocator it actually runs on (no
+        # ctypes.util.find_library, which runs ldconfig in a subprocess at every start)
+        mallopt = ctypes.CDLL(None).mallopt
     except (OSError, AttributeError):
         return False
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
