@@ -107,10 +107,9 @@ def passed_lamps(frames, first_confirmation_m, within_m=PASSED_WITHIN_M):
     nearest = {}
     for uid, along, _, _ in frames:
         nearest[int(uid)] = min(nearest.get(int(uid), np.inf), float(along))
-    passed = [int(u) for u in first_confirmation_m if nearest.get(int(u), np.inf) < within_m]
-    identified = [u for u in passed if first_confirmation_m.get(u, first_confirmation_m.get(
-        str(u))) is not None]
-    return len(passed), len(identified)
+    passed = [first for uid, first in first_confirmation_m.items()
+              if nearest.get(int(uid), np.inf) < within_m]
+    return len(passed), sum(first is not None for first in passed)
 
 
 def success_by_distance(frames, edges_m=tuple(range(0, 11))):
