@@ -39,8 +39,9 @@ import numpy as np
 from train_localizer.core.fix import RigGeometry
 from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import STATUSES, ChainageAid, ReacquisitionConfig
-from train_localizer.core.simulation import (SensorErrors, SensorSimulator, event_stream,
-                                             from_stamp_ns, to_stamp_ns)
+from train_localizer.core.simulation import (SensorErrors, SensorSimulator, dark_lamps,
+                                             event_stream, feed_localizer, from_stamp_ns,
+                                             to_stamp_ns)
 from train_localizer.core.track import Track
 from vlc_stereo_camera.core.alignment import Alignment
 from vlc_stereo_camera.core.camera import StereoRig
@@ -115,7 +116,7 @@ def run_outage(aid=True, errors='rig', speed='localizer', speed_kmh=80.0, start_
     chainage_aid = ChainageAid(loc, aid_config or ReacquisitionConfig(enabled=aid))
     curvature = CurvatureLocalizer(alignment, curvature_config or CurvatureConfig())
     rng = np.random.default_rng([seed, 7])
-    poses, fixes, aids, matches = [], [], [], []
+    aids, matches = [], []
 
     def use(new_matches):
         for timed in new_matches:
@@ -125,26 +126,21 @@ def run_outage(aid=True, errors='rig', speed='localizer', speed_kmh=80.0, start_
             aids.append(chainage_aid.add(to_stamp_ns(timed.t_s), timed.match.chainage_m,
                                          timed.match.chainage_sigma_m ** 2))
 
-    for _, kind, payload in events:
+    def feed_curvature(kind, payload, report):
+        # the curvature core sees the gyro (with its own bias and noise) and a speed
         if kind == 'imu':
-            report = loc.add_imu(payload)
             t = from_stamp_ns(payload.stamp_ns)
             if speed == 'tacho' and round(t * 400) % 8 == 0:
                 truth_v = float(traj.sample(t).speed_mps[0])
                 use(curvature.add_speed(t, max(truth_v * 1.03 + rng.normal(0.0, 0.05), 0.0)))
             w = float(payload.gyro_rps[2]) + gyro_bias_rps + rng.normal(0.0, gyro_noise_rps)
             use(curvature.add_imu(t, w))
-        else:
-            stamp, observations, truth = payload
-            keep = [o for o, tr in zip(observations, truth)
-                    if not dark[0] <= lamps.by_uid(tr['uid']).track_chainage_m < dark[1]]
-            report = loc.add_frame(stamp, keep)
-        poses += report.poses
-        fixes += report.fixes
         if speed == 'localizer':
             for p in report.poses:
                 if p.kind == 'grid':
                     use(curvature.add_speed(from_stamp_ns(p.stamp_ns), abs(p.speed_mps)))
+
+    poses, fixes, _ = feed_localizer(loc, events, dark_lamps(lamps, dark), feed_curvature)
     t = np.array([from_stamp_ns(p.stamp_ns) for p in poses])
     return OutageRun(t, traj.sample(t).chainage_m, np.array([p.chainage_m for p in poses]),
                      np.array([p.chainage_sigma_m for p in poses]), aids, matches, fixes,

@@ -16,6 +16,7 @@ from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.observation import ImuSample, LampObservation
 from train_localizer.core.simulation import (EPOCH_NS, SensorErrors, SensorSimulator,
                                              event_stream, from_stamp_ns)
+from train_localizer.core.simulation import feed_localizer as feed
 
 RIG = StereoRig()
 LAMPS = straight_tunnel_map()
@@ -35,22 +36,6 @@ def make(**overrides):
     for key, value in overrides.items():
         setattr(cfg, key, value)
     return Localizer(LAMPS, cfg)
-
-
-def feed(loc, events, frame_hook=None):
-    poses, fixes, logs = [], [], []
-    for _, kind, payload in events:
-        if kind == 'imu':
-            report = loc.add_imu(payload)
-        else:
-            stamp, observations, truth = payload
-            if frame_hook is not None:
-                observations = frame_hook(stamp, observations, truth)
-            report = loc.add_frame(stamp, observations)
-        poses += report.poses
-        fixes += report.fixes
-        logs += report.events
-    return poses, fixes, logs
 
 
 def errors_of(poses, traj):

@@ -20,8 +20,8 @@ from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import (APPLIED, IGNORED, REJECTED_GATE, RESET,
                                                 UNCONFIRMED, ChainageAid, ReacquisitionConfig,
                                                 chainage_measurement)
-from train_localizer.core.simulation import (SensorErrors, SensorSimulator, event_stream,
-                                             from_stamp_ns)
+from train_localizer.core.simulation import (SensorErrors, SensorSimulator, dark_lamps,
+                                             event_stream, feed_localizer, from_stamp_ns)
 from train_localizer.core.track import Track
 
 RIG = StereoRig()
@@ -49,25 +49,24 @@ def run(dark, start_m=700.0, end_m=1300.0, matches=None, aid_config=None, errors
         cfg.initial_speed_mps = v
     loc = Localizer(LAMPS, cfg)
     aid = ChainageAid(loc, aid_config or ReacquisitionConfig())
-    poses, fixes, next_match = [], [], 1.0
-    for _, kind, payload in event_stream(sim, 0.0, (end_m - start_m) / v):
-        if kind == 'imu':
-            report = loc.add_imu(payload)
-            t = from_stamp_ns(payload.stamp_ns)
-            if matches is not None and t >= next_match:
-                next_match += 1.0
-                m = matches(t, float(traj.sample(t).chainage_m[0]))
-                if m is not None:
-                    aid.add(payload.stamp_ns, m[0], m[1] ** 2)
-        else:
-            if not frames:
-                continue
-            stamp, observations, truth = payload
-            keep = [o for o, tr in zip(observations, truth)
-                    if not dark[0] <= LAMPS.by_uid(tr['uid']).track_chainage_m < dark[1]]
-            report = loc.add_frame(stamp, keep)
-        poses += report.poses
-        fixes += report.fixes
+    next_match = 1.0
+
+    def match_once_a_second(kind, payload, report):
+        nonlocal next_match
+        if kind != 'imu' or matches is None:
+            return
+        t = from_stamp_ns(payload.stamp_ns)
+        if t >= next_match:
+            next_match += 1.0
+            m = matches(t, float(traj.sample(t).chainage_m[0]))
+            if m is not None:
+                aid.add(payload.stamp_ns, m[0], m[1] ** 2)
+
+    events = event_stream(sim, 0.0, (end_m - start_m) / v)
+    if not frames:
+        events = [e for e in events if e[1] == 'imu']
+    poses, fixes, _ = feed_localizer(loc, events, dark_lamps(LAMPS, dark),
+                                     match_once_a_second)
     t = np.array([from_stamp_ns(p.stamp_ns) for p in poses])
     truth = traj.sample(t).chainage_m
     est = np.array([p.chainage_m for p in poses])

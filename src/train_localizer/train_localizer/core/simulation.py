@@ -221,3 +221,39 @@ def event_stream(simulator, t_start_s, t_end_s, timing=None):
         events.append((t0 + timing.frame_delay_s, 1, simulator.frame(t0)))
     events.sort(key=lambda e: (e[0], e[1]))
     return [(t, 'imu' if kind == 0 else 'frame', payload) for t, kind, payload in events]
+
+
+def feed_localizer(localizer, events, frame_hook=None, on_report=None):
+    """Feed ``events`` (:func:`event_stream`) to ``localizer`` in their order.
+
+    ``frame_hook(stamp_ns, observations, truth)`` returns the observations a frame passes
+    on (a lamp outage, forged lamps); ``on_report(kind, payload, report)`` runs after each
+    event (an aid fed from the IMU or the poses). Returns (poses, fixes, events) of every
+    step report.
+    """
+    poses, fixes, logs = [], [], []
+    for _, kind, payload in events:
+        if kind == 'imu':
+            report = localizer.add_imu(payload)
+        else:
+            stamp, observations, truth = payload
+            if frame_hook is not None:
+                observations = frame_hook(stamp, observations, truth)
+            report = localizer.add_frame(stamp, observations)
+        if on_report is not None:
+            on_report(kind, payload, report)
+        poses += report.poses
+        fixes += report.fixes
+        logs += report.events
+    return poses, fixes, logs
+
+
+def dark_lamps(lamp_map, dark_m):
+    """A ``frame_hook`` for :func:`feed_localizer`: the lamps whose track chainage lies in
+    ``dark_m`` = (from, to) are dark, their observations dropped."""
+    lo, hi = dark_m
+
+    def hook(stamp_ns, observations, truth):
+        return [o for o, tr in zip(observations, truth)
+                if not lo <= lamp_map.by_uid(tr['uid']).track_chainage_m < hi]
+    return hook
