@@ -96,7 +96,8 @@ def simulate(scenario, seed, filter_config=None, ideal_scale_factor=False, rate_
     -------
     dict
         ``t_s`` (N,) since the epoch; ``before_deg`` and ``after_deg`` (N, 3) roll, pitch,
-        heading errors, deg; ``scored`` (N,) bool (t ≥ settle_s); ``speed_mps`` (N,);
+        heading errors, deg; ``sigma_deg`` (N, 3) the filter's 1σ about map x, y, z (no
+        published floor), deg; ``scored`` (N,) bool (t ≥ settle_s); ``speed_mps`` (N,);
         ``gyro_scale_error`` (3,); ``stationary`` (N,) bool; ``elapsed_s`` of the filter;
         ``compensator`` (its final state); ``true_gyro_bias_rps`` (3,) at the last sample.
     """
@@ -112,6 +113,7 @@ def simulate(scenario, seed, filter_config=None, ideal_scale_factor=False, rate_
     comp = AttitudeCompensator(CompensatorConfig(filter=filter_config or AttitudeFilterConfig(),
                                                  nominal_rate_hz=rate_hz))
     quats = np.empty((t.size, 4))
+    att_var = np.empty((t.size, 3))
     stationary = np.empty(t.size, dtype=bool)
     aid_rng = np.random.default_rng(seed + 1000)
     aid_every = int(round(scenario.aiding_period_s * rate_hz))
@@ -120,6 +122,7 @@ def simulate(scenario, seed, filter_config=None, ideal_scale_factor=False, rate_
     for i in range(t.size):
         res = comp.process(EPOCH_S + t[i], gyro[i], accel[i])
         quats[i] = res.quat_xyzw
+        att_var[i] = res.covariance.diagonal()
         stationary[i] = res.stationary
         k = i - aid_delay           # a heading measured at sample k arrives now
         if aid_every and k >= 0 and k % aid_every == 0:
@@ -132,6 +135,7 @@ def simulate(scenario, seed, filter_config=None, ideal_scale_factor=False, rate_
     after = (est_rpy - true_rpy + np.pi) % (2.0 * np.pi) - np.pi
     return {
         't_s': t, 'before_deg': true_rpy / DEG, 'after_deg': after / DEG,
+        'sigma_deg': np.sqrt(att_var) / DEG,
         'scored': t >= scenario.settle_s, 'speed_mps': truth.speed_mps,
         'gyro_scale_error': np.diag(model.gyro_matrix) - 1.0, 'stationary': stationary,
         'elapsed_s': elapsed, 'compensator': comp,

@@ -22,6 +22,7 @@ from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
+from imu_compensator.core.rotations import quat_from_rpy  # noqa: E402
 from spot_locator import conversions as spot_conversions  # noqa: E402
 from vlc_decoder import conversions as decoder_conversions  # noqa: E402
 from vlc_stereo_camera.core.camera import StereoRig  # noqa: E402
@@ -271,8 +272,10 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
     for arrival_s, kind, payload in events:
         t_ns = int(round(arrival_s * 1e9))
         if kind == 'imu':
-            msgs.append(('/imu/data', 'sensor_msgs/msg/Imu', t_ns,
-                         serialize_message(imu_msg(payload))))
+            # the same samples as the compensator's input (it ignores the orientation)
+            for topic in ('/imu/data', '/imu/data_raw'):
+                msgs.append((topic, 'sensor_msgs/msg/Imu', t_ns,
+                             serialize_message(imu_msg(payload))))
             continue
         stamp, observations, _ = payload
         msgs.append(('/spots/pairs', 'sensor_msgs/msg/PointCloud2', t_ns,
@@ -280,8 +283,11 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
         msgs.append(('/vlc/lamps', 'sensor_msgs/msg/PointCloud2', t_ns + 1000,
                      serialize_message(lamps_msg(stamp, observations))))
         truth = PoseStamped(header=header(stamp, 'map'))
-        p = traj.sample(from_stamp_ns(stamp)).position_m.reshape(-1)
+        state = traj.sample(from_stamp_ns(stamp))
+        p = state.position_m.reshape(-1)
         truth.pose.position.x, truth.pose.position.y, truth.pose.position.z = map(float, p)
+        o = truth.pose.orientation
+        o.x, o.y, o.z, o.w = map(float, quat_from_rpy(*state.rpy_rad.reshape(-1)))
         msgs.append(('/ground_truth/pose', 'geometry_msgs/msg/PoseStamped', t_ns,
                      serialize_message(truth)))
     msgs.sort(key=lambda m: m[2])
@@ -297,6 +303,19 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
     assert raw.pose_t.size and raw.pose_t.size != result.pose_t.size
     with pytest.raises(ValueError):
         replay.load_params(overrides={'no_such_parameter': 1})
+    # --compensator: the attitude loop re-run on /imu/data_raw, the localizer's aids fed
+    # back (an ideal gyro here: the cold start's heading comes from the lamps)
+    loop = replay.CompensatorLoop()
+    closed = replay.score(replay.replay(bag, replay.load_params(), loop), settle_s=0.5)
+    assert loop.compensator.stats.accepted > 400 and loop.compensator.stats.aiding_used > 2
+    assert closed['poses'] > 30 and closed['error']['max_m'] < 0.06
+    assert closed['heading_max_abs_deg'] < 0.5
+    # no aiding: the cold start keeps the heading it guessed (the track's), off by the sway
+    blind = replay.score(replay.replay(bag, replay.load_params(
+        overrides={'heading_aiding_period_s': 0.0}), replay.CompensatorLoop()), settle_s=0.5)
+    assert blind['heading_max_abs_deg'] > closed['heading_max_abs_deg']
+    with pytest.raises(ValueError):
+        replay.CompensatorLoop(overrides={'no_such_parameter': 1})
 
 
 # --- the curvature re-acquisition aid ------------------------------------------------

@@ -1,4 +1,4 @@
-"""Messages ↔ arrays for the decoder node: images in, lamp records and diagnostics out.
+r"""Messages ↔ arrays for the decoder node: images in, lamp records and diagnostics out.
 
 ``vlc/lamps`` (sensor_msgs/PointCloud2, one point per lamp seen in the frame, header =
 the left image's header, little endian, ``point_step`` 112):

@@ -23,7 +23,9 @@ car-body vibration and must be compensated with the IMU):
   with W = 2 s. Buffered innovations are kept consistent with later corrections
   (each entry stores innovation + the cumulative correction at its time). There is no
   magnetometer in a tunnel, so heading has no other absolute reference; the residual
-  drift of the gyro bias through τ is the other side of the trade-off.
+  drift of the gyro bias through τ is the other side of the trade-off. The window mean
+  is the error about W/2 in the past; with a gyro-bias error it ramps meanwhile, so the
+  pull's measurement row carries the bias coupling (see :meth:`AttitudeFilter._pull_lag`).
 * Gravity is an optional tilt reference (off by default): the ADIS16488 turn-on
   accelerometer bias (16 mg, 1σ) alone tilts the gravity vector by ≈ 0.9°, and the
   train's 1 m/s² traction/braking by ≈ 5.8°, both far more than the track reference's
@@ -260,10 +262,19 @@ class AttitudeFilter:
         # window (re)started; each buffered innovation carries the value at its time.
         self._corr = [0.0, 0.0, 0.0]
         self._pull_ring = deque()
-        # Sums over the window: roll, pitch, heading innovations, squared sway rate.
-        self._pull_sum = [0.0, 0.0, 0.0, 0.0]
+        # Sums over the window: roll, pitch, heading innovations, squared sway rate,
+        # then A (9, row-major) and G (3) of each entry (see _accumulate_pull).
+        self._pull_sum = [0.0] * 16
         self._pull_time = 0.0
         self._pull_full = False
+        # Lag bookkeeping since the window (re)started: A = ∫R dt (9, row-major, the
+        # bias → attitude-error coupling), the cumulative bias correction CB (3) of
+        # every update, and G = ∫R·CB dt (3) kept as G_ref + (A − A_ref)·CB, exact
+        # because CB only changes at an update.
+        self._cum_a = [0.0] * 9
+        self._bias_corr = [0.0, 0.0, 0.0]
+        self._g_ref = [0.0, 0.0, 0.0]
+        self._a_ref = [0.0] * 9
 
     # ------------------------------------------------------------------ per sample
     def step(self, gyro_rps, accel_mps2, dt_s, stationary, sample_rate_hz,
@@ -349,17 +360,12 @@ class AttitudeFilter:
         else:
             dx, dy, dz, dw = 0.5 * wx, 0.5 * wy, 0.5 * wz, 1.0
         x, y, z, w = self._q
-        # Σ R·dt with R before the step (bias → attitude-error coupling), row-major.
-        acc = self._sum_r_dt
-        acc[0] += (1 - 2 * (y * y + z * z)) * dt
-        acc[1] += 2 * (x * y - z * w) * dt
-        acc[2] += 2 * (x * z + y * w) * dt
-        acc[3] += 2 * (x * y + z * w) * dt
-        acc[4] += (1 - 2 * (x * x + z * z)) * dt
-        acc[5] += 2 * (y * z - x * w) * dt
-        acc[6] += 2 * (x * z - y * w) * dt
-        acc[7] += 2 * (y * z + x * w) * dt
-        acc[8] += (1 - 2 * (x * x + y * y)) * dt
+        # R before the step (bias → attitude-error coupling), row-major; Σ R·dt.
+        r = (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+             2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+             2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
+        self._step_r = r
+        self._sum_r_dt = [a + b * dt for a, b in zip(self._sum_r_dt, r)]
         self._pending_dt += dt
         qx = w * dx + x * dw + y * dz - z * dy
         qy = w * dy - x * dz + y * dw + z * dx
@@ -400,24 +406,47 @@ class AttitudeFilter:
         roll, pitch, yaw = _rpy_of(*self._q)
         ref_yaw = c.track_heading_rad + c.heading_offset_rad
         corr = self._corr
+        # Lag model: A_i = ∫R dt up to this sample, G_i = ∫R·CB dt (see _reset_pull).
+        r = self._step_r
+        cum = self._cum_a = [a + b * dt for a, b in zip(self._cum_a, r)]
+        cb0, cb1, cb2 = self._bias_corr
+        d = [a - b for a, b in zip(cum, self._a_ref)]
+        g0, g1, g2 = self._g_ref
         entry = (dt, _wrap(c.track_roll_rad - roll) + corr[0],
                  _wrap(c.track_pitch_rad - pitch) + corr[1], _wrap(ref_yaw - yaw) + corr[2],
-                 sway2)
-        ring, s = self._pull_ring, self._pull_sum
+                 sway2, *cum, g0 + d[0] * cb0 + d[1] * cb1 + d[2] * cb2,
+                 g1 + d[3] * cb0 + d[4] * cb1 + d[5] * cb2,
+                 g2 + d[6] * cb0 + d[7] * cb1 + d[8] * cb2)
+        ring = self._pull_ring
         ring.append(entry)
-        s[0] += entry[1]
-        s[1] += entry[2]
-        s[2] += entry[3]
-        s[3] += sway2
+        s = [a + b for a, b in zip(self._pull_sum, entry[1:])]
         self._pull_time += dt
         while self._pull_time - ring[0][0] >= c.pull_window_s:
             old = ring.popleft()
             self._pull_time -= old[0]
-            s[0] -= old[1]
-            s[1] -= old[2]
-            s[2] -= old[3]
-            s[3] -= old[4]
+            s = [a - b for a, b in zip(s, old[1:])]
             self._pull_full = True
+        self._pull_sum = s
+
+    def _pull_lag(self):
+        """(M̄ (3, 3), β (3,)) of the pull window (map frame).
+
+        The window's mean innovation measures the attitude error averaged over the last
+        W, not the current one: with a gyro-bias error δb the error grows along the
+        window, δθ(t_i) = δθ(now) + (A_now − A_i)·δb, so the mean measures
+        δθ(now) + M̄·δb with M̄ = A_now − mean(A_i) (≈ W/2 on a straight track). Left
+        out, a cold start's turn-on bias (0.2°/s) makes the first pull land W/2·δb
+        (~0.4°) short with a covariance that claims 0.05°. β removes from the buffered
+        innovations what the bias corrections made since each entry already explain:
+        mean over i of ∫_{t_i}^{now} R·(CB_now − CB(t)) dt.
+        """
+        n = len(self._pull_ring)
+        s, cum, cb = self._pull_sum, self._cum_a, self._bias_corr
+        m = np.array([cum[k] - s[4 + k] / n for k in range(9)]).reshape(3, 3)
+        g_now = np.array(self._g_ref) + (np.array(cum) - np.array(self._a_ref)).reshape(3, 3) \
+            @ np.array(cb)
+        beta = m @ np.array(cb) - (g_now - np.array(s[13:16]) / n)
+        return m, beta
 
     def _at_speed(self):
         """Sway gate of the pulls (see ``pull_min_sway_ratio``), updating the reference."""
@@ -438,6 +467,7 @@ class AttitudeFilter:
         corr = self._corr
         # Mean innovation over the window, shifted by the corrections made since.
         mean = [self._pull_sum[k] / n - corr[k] for k in range(3)]
+        lag, beta = self._pull_lag()
         roll, pitch, yaw = _rpy_of(*self._q)
         sy, cy = math.sin(yaw), math.cos(yaw)
         sp, cp = math.sin(pitch), math.cos(pitch)
@@ -453,9 +483,10 @@ class AttitudeFilter:
             return
         h = np.zeros((len(rows), 6))
         h[:, :3] = [r[0] for r in rows]
+        h[:, 3:] = h[:, :3] @ lag
         tau = np.array([r[2] for r in rows])
         var = c.gyro_noise_density_rps_rthz ** 2 * tau ** 2 / period_s
-        self._update(h, np.array([r[1] for r in rows]), var)
+        self._update(h, np.array([r[1] for r in rows]) - h[:, :3] @ beta, var)
 
     def _apply_zero_rate(self, sample_rate_hz):
         """Zero-angular-rate update: standing, the mean gyro reading is its bias."""
@@ -523,6 +554,12 @@ class AttitudeFilter:
             self._corr[k] += _wrap(after[k] - before[k])
         self.gyro_bias_rps = self.gyro_bias_rps + dx[3:]
         self._bias = self.gyro_bias_rps.tolist()
+        # Lag bookkeeping of the pull window: fold ∫R·CB dt up to now into G_ref, then
+        # add this correction to CB.
+        m = np.array(self._cum_a).reshape(3, 3) - np.array(self._a_ref).reshape(3, 3)
+        self._g_ref = (np.array(self._g_ref) + m @ np.array(self._bias_corr)).tolist()
+        self._a_ref = list(self._cum_a)
+        self._bias_corr = (np.array(self._bias_corr) + dx[3:]).tolist()
         ikh = np.eye(6) - gain @ h
         p = ikh @ self.P @ ikh.T + (gain * variance) @ gain.T
         self.P = 0.5 * (p + p.T)
