@@ -122,3 +122,39 @@ def pose_heading(msg):
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     var = float(msg.pose.covariance[35])
     return stamp_to_s(msg.header.stamp), yaw, var if var > 0.0 else float('nan')
+
+
+def pose_attitude(msg):
+    """(t_s, quat_xyzw (4,), covariance (3, 3) rad² or None) of a PoseWithCovarianceStamped.
+
+    The covariance is the rotation block (rows/columns 3-5, about x, y, z) of the 6×6
+    covariance; None unless it is finite, symmetric and positive definite — a message
+    that only fills covariance[35] (a heading) gives None, see :func:`pose_heading`.
+    """
+    o = msg.pose.pose.orientation
+    cov = np.array(msg.pose.covariance, dtype=float).reshape(6, 6)[3:, 3:]
+    ok = (np.all(np.isfinite(cov)) and np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15)
+          and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0.0))
+    return (stamp_to_s(msg.header.stamp), np.array([o.x, o.y, o.z, o.w], dtype=float),
+            0.5 * (cov + cov.T) if ok else None)
+
+
+def fuse_aiding(compensator, msg, heading_std_rad):
+    """Fuse one ``attitude_aiding`` message into an ``AttitudeCompensator``.
+
+    The full attitude when the rotation block of its covariance is usable
+    (:func:`pose_attitude`), else only its heading (:func:`pose_heading`), with
+    ``heading_std_rad`` when covariance[35] is not positive either.
+
+    Returns
+    -------
+    (bool, float)
+        Whether it was fused, and its stamp (s).
+    """
+    t_s, quat, cov = pose_attitude(msg)
+    if cov is not None:
+        return compensator.attitude_aiding(t_s, quat, cov), t_s
+    t_s, yaw, var = pose_heading(msg)
+    if not math.isfinite(var):
+        var = heading_std_rad ** 2
+    return compensator.heading_aiding(t_s, yaw, var), t_s

@@ -5,10 +5,13 @@ Subscriptions
 ``imu/data_raw`` (sensor_msgs/Imu, best effort, depth 100: ``IMU_QOS``)
     Angular rate (rad/s) and specific force (m/s², +9.81 on z at rest) in
     ``imu_frame_id``, ENU; orientation ignored.
-``heading_aiding`` (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10)
-    Optional external heading (e.g. from vision): the yaw of the orientation, its
-    variance from covariance[35] (``heading_aiding_std_rad`` when absent), fused at the
-    message's stamp.
+``attitude_aiding`` (geometry_msgs/PoseWithCovarianceStamped, reliable, depth 10)
+    Optional external attitude (train_localizer: the attitude each accepted lamp shows),
+    fused at the message's stamp: the orientation with the rotation block of the
+    covariance (rows/columns 3-5, about map x, y, z) when that block is positive
+    definite; otherwise only the yaw of the orientation, with variance covariance[35]
+    (``heading_aiding_std_rad`` when that is not positive either), e.g. a heading
+    from another source.
 
 Publications
 ------------
@@ -44,7 +47,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
-from imu_compensator.conversions import fill_imu_data, imu_sample, pose_heading
+from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
 from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorConfig,
                                               SampleStatus)
@@ -138,13 +141,14 @@ NODE_PARAMETERS = (
     ('backward_reset_s', _C.backward_reset_s,
      _desc('A stamp this much older than the newest resets the filter; less is dropped as '
            'out of order, s.', 1e-4, 1e6)),
-    ('history_s', _C.history_s, _desc('Attitude history kept for delayed heading aiding, s.',
+    ('history_s', _C.history_s, _desc('Attitude history kept for delayed aiding, s.',
                                       0.1, 60.0)),
     ('orientation_std_floor_rad', [0.05 * DEG, 0.05 * DEG, 0.1 * DEG],
      _desc('1 sigma [roll, pitch, heading] added in quadrature to the published orientation '
            'covariance (errors the filter does not model), rad.', ptype=_ARRAY)),
     ('heading_aiding_std_rad', 1.0 * DEG,
-     _desc('1 sigma of a heading_aiding message without covariance, rad.', 1e-6, 1.0)),
+     _desc('1 sigma of the heading of an attitude_aiding message without a usable '
+           'covariance, rad.', 1e-6, 1.0)),
     ('poll_period_s', 0.005, _desc('imu/data_raw is taken in batches this often (steady '
                                    'clock), off the executor; 0 = a callback per sample, s.',
                                    0.0, 0.05)),
@@ -262,8 +266,8 @@ class ImuCompensatorNode(Node):
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         else:
             self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, 'heading_aiding',
-                                 self._on_heading_aiding, 10)
+        self.create_subscription(PoseWithCovarianceStamped, 'attitude_aiding',
+                                 self._on_attitude_aiding, 10)
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics)
         self.get_logger().info(
             f'attitude of {cfg.base_frame_id} from {self.resolve_topic_name("imu/data_raw")} at '
@@ -319,12 +323,10 @@ class ImuCompensatorNode(Node):
             self._warnings.warn('out_of_order', lambda: f'out-of-order IMU sample '
                                 f'({result.dt_s * 1e3:.1f} ms before the newest) skipped')
 
-    def _on_heading_aiding(self, msg):
-        t_s, yaw, var = pose_heading(msg)
-        if not math.isfinite(var):
-            var = self.config.heading_aiding_std_rad ** 2
-        if not self.compensator.heading_aiding(t_s, yaw, var):
-            self._warnings.warn('aiding_rejected', lambda: f'heading aiding at t = {t_s:.6f} s '
+    def _on_attitude_aiding(self, msg):
+        ok, t_s = fuse_aiding(self.compensator, msg, self.config.heading_aiding_std_rad)
+        if not ok:
+            self._warnings.warn('aiding_rejected', lambda: f'attitude aiding at t = {t_s:.6f} s '
                                 'rejected (outside the attitude history or not finite)')
 
     # ------------------------------------------------------------------ diagnostics
@@ -365,8 +367,8 @@ class ImuCompensatorNode(Node):
             'dropped_out_of_order': str(stats.out_of_order),
             'gaps': str(stats.gaps),
             'resets': str(stats.resets),
-            'heading_aiding_used': str(stats.aiding_used),
-            'heading_aiding_rejected': str(stats.aiding_rejected),
+            'attitude_aiding_used': str(stats.aiding_used),
+            'attitude_aiding_rejected': str(stats.aiding_rejected),
             'rpy_deg': ' '.join(f'{a / DEG:.3f}' for a in rpy),
             'heading_std_deg': f'{math.sqrt(comp.filter.attitude_covariance[2, 2]) / DEG:.4f}',
         }

@@ -107,3 +107,32 @@ def test_heading_aiding_at_a_past_stamp_corrects_the_present():
     assert not comp.heading_aiding(t_meas, math.nan, 1e-6)
     assert not comp.heading_aiding(t_meas, 0.0, -1.0)
     assert (comp.stats.aiding_used, comp.stats.aiding_rejected) == (1, 3)
+
+
+def test_attitude_aiding_corrects_what_it_sees_and_keeps_what_it_cannot():
+    from imu_compensator.core.rotations import quat_from_rotvec, quat_multiply
+    rng = np.random.default_rng(5)
+    comp = AttitudeCompensator()
+    still(comp, T0, 800, rng)
+    rpy0 = comp.filter.rpy_rad.copy()
+    t_meas = T0 + 700 * DT
+    then = comp.history.at(t_meas)
+    # The measurement sees roll and heading (1e-10 rad²) but not pitch (1 rad²): it says
+    # roll +0.01, pitch -0.02 (unseen), heading +0.005.
+    q_meas = quat_multiply(quat_from_rotvec([0.01, -0.02, 0.005]), then)
+    cov = np.diag([1e-10, 1.0, 1e-10])
+    assert comp.attitude_aiding(t_meas, q_meas, cov)
+    rpy = comp.filter.rpy_rad
+    assert rpy[0] - rpy0[0] == pytest.approx(0.01, abs=2e-4)
+    assert rpy[2] - rpy0[2] == pytest.approx(0.005, abs=2e-4)
+    assert abs(rpy[1] - rpy0[1]) < 2e-4                      # pitch kept: its σ was 0.02°
+    # and the filter is now sure of roll and heading
+    assert comp.filter.attitude_covariance[0, 0] < 1e-9
+    bad = [(T0 - 10.0, q_meas, cov),                          # outside the history
+           (t_meas, [math.nan, 0, 0, 1], cov),
+           (t_meas, q_meas, np.diag([1.0, -1.0, 1.0])),       # not positive definite
+           (t_meas, q_meas, np.array([[1.0, 0.5, 0], [0.0, 1.0, 0], [0, 0, 1.0]])),  # asymmetric
+           (t_meas, q_meas, np.eye(2))]
+    for args in bad:
+        assert not comp.attitude_aiding(*args)
+    assert (comp.stats.aiding_used, comp.stats.aiding_rejected) == (1, len(bad))

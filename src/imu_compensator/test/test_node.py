@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.context import Context
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
@@ -127,6 +128,49 @@ def test_output_is_stamped_with_the_sample_time_and_bad_input_is_skipped(ctx):
                     'samples_dropped', 'gaps', 'resets'):
             assert key in values
         assert values['samples_dropped'] == '4'
+    finally:
+        h.close()
+
+
+def aid(stamp_ns, quat, cov3=None, yaw_var=0.0):
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)
+    msg.header.frame_id = 'map'
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = (float(v) for v in quat)
+    cov = np.diag([1e6, 1e6, 1e6, 0.0, 0.0, yaw_var])
+    if cov3 is not None:
+        cov[3:, 3:] = cov3
+    msg.pose.covariance = cov.ravel().tolist()
+    return msg
+
+
+def test_attitude_aiding_full_heading_only_and_malformed(ctx):
+    h = Harness(ctx)
+    try:
+        aid_pub = h.probe.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
+        h.send([raw(EPOCH_NS + k * PERIOD_NS) for k in range(400)])
+        assert h.spin_until(lambda: len(h.out) >= 350)
+        t_aid = EPOCH_NS + 300 * PERIOD_NS
+        half = 0.5 * 0.01
+        # sees roll only: roll +0.01
+        msgs = [aid(t_aid, [math.sin(half), 0.0, 0.0, math.cos(half)], np.diag([1e-11, 1, 1])),
+                # heading only (the rotation block is not positive definite): yaw +0.01
+                aid(t_aid, [0.0, 0.0, math.sin(half), math.cos(half)], yaw_var=1e-11),
+                aid(t_aid, [0.0, 0.0, 0.0, 0.0], np.eye(3) * 1e-8)]   # zero quaternion
+        deadline = time.monotonic() + 5.0
+        while aid_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            h.executor.spin_once(timeout_sec=0.02)
+        for msg in msgs:
+            aid_pub.publish(msg)
+        s = h.node.compensator.stats
+        assert h.spin_until(lambda: s.aiding_used + s.aiding_rejected >= 3)
+        assert (s.aiding_used, s.aiding_rejected) == (2, 1)
+        roll, _, yaw = h.node.compensator.filter.rpy_rad
+        assert roll == pytest.approx(0.01, abs=1e-3) and yaw == pytest.approx(0.01, abs=1e-3)
+        assert h.spin_until(lambda: any(
+            {kv.key: kv.value for kv in d.status[0].values}.get('attitude_aiding_used') == '2'
+            for d in h.diags))
     finally:
         h.close()
 

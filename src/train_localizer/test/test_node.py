@@ -96,7 +96,7 @@ class Harness:
                                 ('train/pose_with_covariance', PoseWithCovarianceStamped, 'cov'),
                                 ('train/odometry', Odometry, 'odom'),
                                 ('diagnostics', DiagnosticArray, 'diag'),
-                                ('heading_aiding', PoseWithCovarianceStamped, 'aid')):
+                                ('attitude_aiding', PoseWithCovarianceStamped, 'aid')):
             self.test.create_subscription(typ, topic, lambda m, k=key: self.got[k].append(m), 100)
         self.spin_until(lambda: self.pub_imu.get_subscription_count() > 0
                         and self.pub_spots.get_subscription_count() > 0
@@ -181,12 +181,15 @@ def test_node_publishes_pose_covariance_and_odometry_against_truth(harness):
     odom = h.got['odom'][-1]
     assert odom.child_frame_id == 'base_link'
     assert odom.twist.twist.linear.x == pytest.approx(60.0 / 3.6, abs=0.3)
-    # heading_aiding for the compensator: a few per second, heading variance only
+    # attitude_aiding for the compensator: a few per second, the attitude's covariance in
+    # the rotation block (positive definite, the heading well seen given the tilt),
+    # position unknown
     aids = h.got['aid']
     assert 2 <= len(aids) <= 1.2 / 0.2 + 1
     for aid in aids:
         c = np.array(aid.pose.covariance).reshape(6, 6)
-        assert 0.0 < c[5, 5] < (0.5 * np.pi / 180.0) ** 2 and c[0, 0] >= 1e6
+        assert np.all(np.linalg.eigvalsh(c[3:, 3:]) > 0.0) and c[0, 0] >= 1e6
+        assert 1.0 / np.linalg.inv(c[3:, 3:])[2, 2] < (0.5 * np.pi / 180.0) ** 2
 
 
 def test_no_pose_before_a_confirmed_uid_and_waiting_reported(harness):
@@ -312,7 +315,7 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
     assert closed['heading_max_abs_deg'] < 0.5
     # no aiding: the cold start keeps the heading it guessed (the track's), off by the sway
     blind = replay.score(replay.replay(bag, replay.load_params(
-        overrides={'heading_aiding_period_s': 0.0}), replay.CompensatorLoop()), settle_s=0.5)
+        overrides={'attitude_aiding_period_s': 0.0}), replay.CompensatorLoop()), settle_s=0.5)
     assert blind['heading_max_abs_deg'] > closed['heading_max_abs_deg']
     with pytest.raises(ValueError):
         replay.CompensatorLoop(overrides={'no_such_parameter': 1})

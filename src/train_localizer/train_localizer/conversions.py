@@ -89,12 +89,13 @@ def _fill_pose(pose_msg, est):
      pose_msg.orientation.w) = (float(v) for v in q)
 
 
-def heading_aid_message(aid, map_frame):
-    """HeadingAid → PoseWithCovarianceStamped for the compensator's ``heading_aiding``.
+def attitude_aid_message(aid, map_frame):
+    """AttitudeAid → PoseWithCovarianceStamped for the compensator's ``attitude_aiding``.
 
-    The orientation carries the heading; covariance[35] (rotation about map z) its
-    variance. The position is the fix's chainage on the track; its own variances and
-    roll/pitch are marked unknown (1e6), since only the heading is offered.
+    The orientation carries the attitude the lamp shows; the rotation block of the
+    covariance (rows/columns 3-5, about map x, y, z) its 3×3 covariance. The position
+    is the fix's chainage on the track; its variances are marked unknown (1e6), since
+    only the attitude is offered.
     """
     msg = PoseWithCovarianceStamped()
     msg.header.stamp = ns_to_stamp(aid.stamp_ns)
@@ -102,7 +103,8 @@ def heading_aid_message(aid, map_frame):
     msg.pose.pose.position.x = float(aid.chainage_m)
     q = msg.pose.pose.orientation
     q.x, q.y, q.z, q.w = (float(v) for v in aid.quat_xyzw)
-    cov = np.diag([1e6, 1e6, 1e6, 1e6, 1e6, float(aid.var_rad2)])
+    cov = np.diag([1e6, 1e6, 1e6, 0.0, 0.0, 0.0])
+    cov[3:, 3:] = aid.cov_rad2
     msg.pose.covariance = cov.reshape(-1).tolist()
     return msg
 

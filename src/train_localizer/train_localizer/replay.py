@@ -13,7 +13,7 @@ localizer change or switch is compared on exactly the same perception output
 ``--compensator`` re-runs the attitude loop too: the
 :class:`~imu_compensator.core.compensator.AttitudeCompensator` (the compensator node's
 parameter file, ``-c name:=value`` overrides) on ``/imu/data_raw`` replaces the recorded
-``/imu/data``, and every ``heading_aiding`` message the localizer emits is fused back
+``/imu/data``, and every ``attitude_aiding`` message the localizer emits is fused back
 through the same conversions as between the two nodes, so a compensator change is
 compared on the same perception output as well; it also prints the heading error.
 Upstream switches (Wiener, the decoder, the spot locator) need the graph.
@@ -96,7 +96,7 @@ class _Parameters:
 
 class CompensatorLoop:
     """The imu_compensator node's work, offline: ``/imu/data_raw`` in, ``imu/data``
-    samples out, ``heading_aiding`` messages fused back (same conversions as the nodes).
+    samples out, ``attitude_aiding`` messages fused back (same conversions as the nodes).
 
     Parameters
     ----------
@@ -135,13 +135,11 @@ class CompensatorLoop:
         return conversions.imu_from_msg(self._out)
 
     def add_aids(self, report, map_frame='map'):
-        """Fuse the report's heading aids as the compensator node would receive them."""
-        from imu_compensator.conversions import pose_heading
-        for aid in report.heading_aids:
-            t_s, yaw, var = pose_heading(conversions.heading_aid_message(aid, map_frame))
-            if not math.isfinite(var):
-                var = self.config.heading_aiding_std_rad ** 2
-            self.compensator.heading_aiding(t_s, yaw, var)
+        """Fuse the report's attitude aids as the compensator node receives them."""
+        from imu_compensator.conversions import fuse_aiding
+        for aid in report.attitude_aids:
+            fuse_aiding(self.compensator, conversions.attitude_aid_message(aid, map_frame),
+                        self.config.heading_aiding_std_rad)
 
 
 @dataclass
@@ -254,7 +252,7 @@ def main(argv=None):
     parser.add_argument('--params-file', default='', help="default: the node's own")
     parser.add_argument('--compensator', action='store_true',
                         help='re-run the attitude compensator on /imu/data_raw, aided by the '
-                        "localizer's heading_aiding, instead of the recorded /imu/data")
+                        "localizer's attitude_aiding, instead of the recorded /imu/data")
     parser.add_argument('-c', dest='compensator_overrides', type=_override, action='append',
                         default=[], help='compensator parameter override name:=value '
                         '(with --compensator; repeatable)')

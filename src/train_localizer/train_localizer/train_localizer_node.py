@@ -142,9 +142,9 @@ PARAMETERS = (
     ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at a cold start, m/s.', 0.0, 200.0)),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
-    ('heading_aiding_period_s', 0.2, _desc('Shortest interval between two heading_aiding '
-                                           'messages (the heading an accepted lamp shows), s; '
-                                           '0 = none.', 0.0, 60.0)),
+    ('attitude_aiding_period_s', 0.2, _desc('Shortest interval between two attitude_aiding '
+                                            'messages (the attitude an accepted lamp shows), '
+                                            's; 0 = none.', 0.0, 60.0)),
     ('tilt_leak_time_s', 5.0, _desc('Time over which the gravity leak of the pitch error may '
                                     'wander (extra bias random walk), s; 0 = off.', 0.0, 1000.0)),
     ('gate_chi2', 16.0, _desc('Mahalanobis gate of a fix (chi2, 1 dof).', 1.0, 1e4)),
@@ -250,7 +250,7 @@ class TrainLocalizerNode(Node):
                                                   'train/pose_with_covariance', estimate_qos)
         self.pub_odom = self.create_publisher(Odometry, 'train/odometry', estimate_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'heading_aiding', 10)
+        self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
         # The 400 Hz IMU (and the per-frame camera_info, of which only the latest matters)
         # bypass the executor: taken in batches by _drain() (vlc_stereo_camera.polled).
         poll_s = p['imu_poll_period_s']
@@ -345,7 +345,7 @@ class TrainLocalizerNode(Node):
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(p['imu_lever_arm_m']),
             tilt_leak_time_s=p['tilt_leak_time_s'],
-            heading_aiding_period_s=p['heading_aiding_period_s'],
+            attitude_aiding_period_s=p['attitude_aiding_period_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,
@@ -459,11 +459,12 @@ class TrainLocalizerNode(Node):
     def _publish(self, report):
         for event in report.events:
             self._log_event(event)
-        for aid in report.heading_aids:
-            self.pub_aid.publish(conversions.heading_aid_message(aid, self.params['map_frame_id']))
+        map_frame = self.params['map_frame_id']
+        for aid in report.attitude_aids:
+            self.pub_aid.publish(conversions.attitude_aid_message(aid, map_frame))
         if not report.poses:
             return
-        map_frame, base_frame = self.params['map_frame_id'], self.params['base_frame_id']
+        base_frame = self.params['base_frame_id']
         now_ns = self.get_clock().now().nanoseconds
         used = [f.measurement_ns for f in report.fixes if f.status in ('accepted', 'initialised',
                                                                        'reinitialised')]

@@ -540,10 +540,24 @@ class AttitudeFilter:
         h[0, 2] = 1.0
         self._update(h, np.array([_wrap(float(yaw_innovation_rad))]), np.array([variance_rad2]))
 
+    def update_attitude(self, innovation_rad, covariance_rad2):
+        """External attitude aiding: ``innovation_rad`` (3,) is the small rotation about
+        the map axes from the estimate to the measurement (``R_meas = Exp(δ)·R_est``),
+        ``covariance_rad2`` (3, 3) the measurement's covariance (it may be large about
+        an axis the measurement cannot see). Same timing rule as :meth:`update_heading`.
+        """
+        self._flush_covariance()
+        h = np.zeros((3, 6))
+        h[:, :3] = np.eye(3)
+        self._update(h, np.asarray(innovation_rad, float).reshape(3),
+                     np.asarray(covariance_rad2, float).reshape(3, 3))
+
     def _update(self, h, innovation, variance):
-        """Kalman update with H (m, 6), innovation (m,), diagonal R (m,); Joseph form."""
+        """Kalman update with H (m, 6), innovation (m,) and R: diagonal (m,) or full
+        (m, m); Joseph form."""
+        r = np.diag(variance) if np.ndim(variance) == 1 else variance
         ph = self.P @ h.T
-        s = h @ ph + np.diag(variance)
+        s = h @ ph + r
         gain = np.linalg.solve(s, ph.T).T
         dx = gain @ innovation
         before = _rpy_of(*self._q)
@@ -561,7 +575,7 @@ class AttitudeFilter:
         self._a_ref = list(self._cum_a)
         self._bias_corr = (np.array(self._bias_corr) + dx[3:]).tolist()
         ikh = np.eye(6) - gain @ h
-        p = ikh @ self.P @ ikh.T + (gain * variance) @ gain.T
+        p = ikh @ self.P @ ikh.T + gain @ r @ gain.T
         self.P = 0.5 * (p + p.T)
 
     # ------------------------------------------------------------------ outputs

@@ -25,7 +25,9 @@ import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
 from imu_compensator.core.attitude_filter import AttitudeFilter, AttitudeFilterConfig
-from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix, quat_to_rpy
+from imu_compensator.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
+                                            quat_normalize, quat_to_matrix, quat_to_rotvec,
+                                            quat_to_rpy)
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig, ZeroVelocityDetector
 
 _LOG = logging.getLogger(__name__)
@@ -67,7 +69,7 @@ class CompensatorConfig:
         Rotation of ``imu_link`` in ``base_link`` (roll, pitch, yaw); the filter works in
         ``base_link``.
     history_s : float
-        Length of the attitude history kept for delayed heading aiding, s.
+        Length of the attitude history kept for delayed (attitude or heading) aiding, s.
     """
 
     filter: AttitudeFilterConfig = field(default_factory=AttitudeFilterConfig)
@@ -284,6 +286,39 @@ class AttitudeCompensator:
             self.stats.aiding_rejected += 1
             return False
         self.filter.update_heading(yaw_rad - quat_to_rpy(then)[2], variance_rad2)
+        self.stats.aiding_used += 1
+        return True
+
+    def attitude_aiding(self, t_s, quat_xyzw, covariance_rad2):
+        """Fuse an external attitude measurement (e.g. the one a lamp shows) taken at
+        ``t_s``: the attitude of ``base_link`` in ``map`` and its covariance about the
+        map axes (3, 3), rad².
+
+        As :meth:`heading_aiding`: the innovation is formed against the estimate at
+        ``t_s`` and applied to the current state. With the full covariance the filter
+        sees which combination of roll, pitch and heading the measurement constrains, so
+        an aid whose heading depends on the platform's tilt corrects the tilt as well,
+        instead of passing the tilt error on to the heading as if it were noise.
+
+        Returns
+        -------
+        bool
+            False (counted, not raised) when ``t_s`` is outside the kept history, or the
+            values are not finite, or the covariance is not symmetric positive definite.
+        """
+        q = np.asarray(quat_xyzw, dtype=float).reshape(-1)
+        cov = np.asarray(covariance_rad2, dtype=float)
+        ok = (q.size == 4 and cov.shape == (3, 3) and np.isfinite(t_s)
+              and np.all(np.isfinite(q)) and np.all(np.isfinite(cov))
+              and np.linalg.norm(q) > 1e-6 and np.allclose(cov, cov.T, atol=1e-12)
+              and np.all(np.linalg.eigvalsh(cov) > 0.0))
+        then = self.history.at(t_s) if ok else None
+        if then is None:
+            self.stats.aiding_rejected += 1
+            return False
+        # R_meas = Exp(δ)·R_then  ⇒  δ = log(q_meas ⊗ q_then⁻¹)
+        delta = quat_to_rotvec(quat_multiply(quat_normalize(q), quat_conjugate(then)))
+        self.filter.update_attitude(delta, cov)
         self.stats.aiding_used += 1
         return True
 

@@ -292,7 +292,7 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
                      range_m=float(np.linalg.norm(p_cam)))
 
 
-def _exp_so3(v):
+def exp_so3(v):
     """Rotation matrix of the rotation vector ``v`` (3,) (Rodrigues)."""
     angle = float(np.linalg.norm(v))
     K = skew(v)
@@ -367,7 +367,7 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     dtheta = np.zeros(3)
 
     def linearise():
-        E = _exp_so3(-dtheta)
+        E = exp_so3(-dtheta)
         P, t, _ = track.frame(s)
         d = lamp - P
         # ∂h/∂s = −B·E·t(s); ∂h/∂δθ = B·E·[d]× (first order about the current δθ)
@@ -389,25 +389,33 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     return s, dtheta, np.linalg.inv(N), J, W, r, prior_info
 
 
-def vision_heading(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
-    """Heading error of the IMU attitude seen by one lamp, without the IMU's heading prior.
+#: 1σ of the weak prior that bounds the attitude direction a lamp cannot see (rotation
+#: about its line of sight) in :func:`vision_attitude`, rad.
+VISION_ATTITUDE_PRIOR_SIGMA_RAD = 0.2
 
-    The same fit as :func:`constrained_fix` with the roll/pitch prior kept and the
-    heading prior dropped, so the result is a measurement independent of the IMU
-    heading it corrects (for ``heading_aiding``: the compensator fuses it as such).
+
+def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config):
+    """Attitude error of the IMU seen by one lamp, without the IMU's attitude prior.
+
+    The fit of :func:`constrained_fix` with the IMU prior replaced by a weak one
+    (:data:`VISION_ATTITUDE_PRIOR_SIGMA_RAD` on every axis): the lamp's range fixes the
+    chainage and its direction two attitude angles — rotations about the line of sight
+    stay unseen, and keep the weak prior's variance. The result is a measurement
+    independent of the IMU attitude it corrects (for ``attitude_aiding``: the
+    compensator fuses it with its full covariance, so the roll/pitch error its own
+    heading inherits at close range is carried by its roll/pitch state instead of
+    being averaged away as independent noise).
 
     Returns
     -------
-    (float, float)
-        ``δψ`` (rad, true heading = IMU heading + δψ) and its variance (rad²).
+    (ndarray (3,), ndarray (3, 3))
+        ``δθ`` about the map axes (true attitude = Exp(δθ)·IMU attitude) and its
+        covariance, rad².
     """
-    cov_prior = np.asarray(cov_att, float).copy()
-    cov_prior[2, :] = 0.0
-    cov_prior[:, 2] = 0.0
-    cov_prior[2, 2] = 1.0        # 1 rad: no heading information
+    cov_prior = np.eye(3) * VISION_ATTITUDE_PRIOR_SIGMA_RAD ** 2
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
                         config)
-    return float(fit[1][2]), float(fit[2][3, 3])
+    return np.asarray(fit[1], float), np.asarray(fit[2][1:, 1:], float)
 
 
 def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):

@@ -43,8 +43,8 @@ from imu_compensator.core.attitude_buffer import AttitudeBuffer
 from imu_compensator.core.rotations import quat_to_matrix
 from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw
 
-from .fix import (FixConfig, RigGeometry, compute_fix, measurement_time_ns, triangulate,
-                  vision_heading)
+from .fix import (FixConfig, RigGeometry, compute_fix, exp_so3, measurement_time_ns,
+                  triangulate, vision_attitude)
 from .integrity import (Contradiction, IntegrityConfig, IntegrityMonitor, Level,
                         mahalanobis2, select_association)
 from .kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig, initial_state,
@@ -91,9 +91,9 @@ class LocalizerConfig:
         it carries no covariance), rad.
     attitude_sigma_unknown_rad : tuple of 3 floats
         Attitude 1σ when no attitude is used (the platform vibration's span), rad.
-    heading_aiding_period_s : float
+    attitude_aiding_period_s : float
         Shortest interval between two heading aids (the heading an accepted lamp shows,
-        for the compensator's ``heading_aiding``), s; 0 = none.
+        for the compensator's ``attitude_aiding``), s; 0 = none.
     tilt_leak_time_s : float
         Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
         ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
@@ -130,7 +130,7 @@ class LocalizerConfig:
     attitude_sigma_unknown_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
-    heading_aiding_period_s: float = 0.2
+    attitude_aiding_period_s: float = 0.2
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
     initial_speed_mps: float = float('nan')
@@ -233,21 +233,23 @@ class StepReport:
     poses: list = field(default_factory=list)
     fixes: list = field(default_factory=list)
     events: list = field(default_factory=list)
-    heading_aids: list = field(default_factory=list)
+    attitude_aids: list = field(default_factory=list)
 
 
 @dataclass
-class HeadingAid:
-    """The platform heading one lamp shows (for ``heading_aiding``).
+class AttitudeAid:
+    """The platform attitude one lamp shows (for ``attitude_aiding``).
 
-    ``quat_xyzw`` is the IMU attitude at ``stamp_ns`` turned about map z by the heading
-    error the lamp's direction shows; ``var_rad2`` the variance of that heading, from the
-    lamp alone (the IMU's own heading was not used), rad². ``chainage_m`` is the fix's.
+    ``quat_xyzw`` is the IMU attitude at ``stamp_ns`` corrected by the attitude error
+    the lamp's range and direction show (:func:`~train_localizer.core.fix.vision_attitude`);
+    ``cov_rad2`` its covariance about the map axes from the lamp alone (the IMU's own
+    attitude was not used: large about the line of sight, which one lamp cannot see),
+    rad². ``chainage_m`` is the fix's.
     """
 
     stamp_ns: int
     quat_xyzw: np.ndarray
-    var_rad2: float
+    cov_rad2: np.ndarray
     chainage_m: float
 
 
@@ -750,26 +752,26 @@ class Localizer:
         mon.on_accepted(t_m, confirmed)
         report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
                                       fix.var_m2, d2))
-        self._heading_aid(prep, lamp, fix, report)
+        self._attitude_aid(prep, lamp, fix, report)
 
-    def _heading_aid(self, prep, lamp, fix, report):
-        """At most every ``heading_aiding_period_s``: the heading this accepted lamp shows."""
+    def _attitude_aid(self, prep, lamp, fix, report):
+        """At most every ``attitude_aiding_period_s``: the attitude this accepted lamp shows."""
         cfg = self.config
-        period = cfg.heading_aiding_period_s
+        period = cfg.attitude_aiding_period_s
         if (period <= 0.0 or not cfg.use_imu_attitude or not cfg.fix.use_range_constraint
                 or self._att.at(prep.t_ns * 1e-9) is None):
             return
         if self._last_aid_ns is not None and abs(prep.t_ns - self._last_aid_ns) < period * NS_PER_S:
             return
-        dpsi, var = vision_heading(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
-                                   prep.cov_att, cfg.geometry, cfg.fix)
-        if not (math.isfinite(dpsi) and math.isfinite(var) and var > 0.0):
+        dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
+                                      cfg.geometry, cfg.fix)
+        if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
+                and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0.0)):
             return
         self._last_aid_ns = prep.t_ns
-        c, s = math.cos(dpsi), math.sin(dpsi)
-        Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        report.heading_aids.append(HeadingAid(prep.t_ns, matrix_to_quat_xyzw(Rz @ prep.R), var,
-                                              fix.chainage_m))
+        report.attitude_aids.append(AttitudeAid(prep.t_ns,
+                                                matrix_to_quat_xyzw(exp_so3(dtheta) @ prep.R),
+                                                0.5 * (cov + cov.T), fix.chainage_m))
 
     def _geometry_rejected(self, prep, lamp, fix, report):
         self.monitor.on_geometry_rejected(prep.t_ns, prep.obs.uid, fix.chi2_geometry)
