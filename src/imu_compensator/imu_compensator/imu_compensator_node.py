@@ -93,6 +93,9 @@ NODE_PARAMETERS = (
            0.0, 1e-2)),
     ('initial_gyro_bias_std_rps', _F.initial_gyro_bias_std_rps,
      _desc('1 sigma of the gyro bias at a cold start, rad/s.', 1e-7, 1.0)),
+    ('gyro_scale_factor_std', _F.gyro_scale_factor_std,
+     _desc('1 sigma of each gyro scale-factor error, estimated from the first attitude '
+           'aiding on; 0 = not estimated.', 0.0, 0.2)),
     ('initial_attitude_std_rad', list(_F.initial_attitude_std_rad),
      _desc('1 sigma [roll, pitch, heading] at a cold start, rad.', ptype=_ARRAY)),
     ('aligned_attitude_std_rad', list(_F.aligned_attitude_std_rad),
@@ -202,6 +205,7 @@ def read_config(node):
         gyro_noise_density_rps_rthz=v['gyro_noise_density_rps_rthz'],
         gyro_bias_random_walk_rps2_rthz=v['gyro_bias_random_walk_rps2_rthz'],
         initial_gyro_bias_std_rps=v['initial_gyro_bias_std_rps'],
+        gyro_scale_factor_std=v['gyro_scale_factor_std'],
         initial_attitude_std_rad=_triple('initial_attitude_std_rad',
                                          v['initial_attitude_std_rad']),
         aligned_attitude_std_rad=_triple('aligned_attitude_std_rad',

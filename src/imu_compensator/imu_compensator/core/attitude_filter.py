@@ -1,16 +1,20 @@
 """Error-state Kalman filter for the camera-platform attitude and the gyro bias.
 
-State: attitude quaternion ``q`` (``base_link`` → ``map``, x, y, z, w) and gyro bias
-``b`` (rad/s, ``base_link`` axes). Error state (6,): ``δθ`` — a small rotation about the
-*map* axes, ``R_true = Exp(δθ) · R_est`` — and ``δb = b_true − b_est``. Working in the
-map frame keeps roll/pitch and heading errors on separate axes, which is what the
+State: attitude quaternion ``q`` (``base_link`` → ``map``, x, y, z, w), gyro bias
+``b`` (rad/s, ``base_link`` axes) and gyro scale-factor errors ``k`` (per axis, the rate
+is ``(reading − b)·(1 − k)``). Error state (9,): ``δθ`` — a small rotation about the
+*map* axes, ``R_true = Exp(δθ) · R_est`` — ``δb = b_true − b_est`` and ``δk``. Working
+in the map frame keeps roll/pitch and heading errors on separate axes, which is what the
 track-attitude references below act on.
 
 Why this structure (paper §3.3.2: the camera heading is disturbed by −5.0…+7.5° by the
 car-body vibration and must be compensated with the IMU):
 
 * Fast attitude — the 0.3–3 Hz vibration — comes from integrating the gyro; it is
-  exact up to the gyro's scale-factor error (ADIS16488: 1 %, 1σ, not observable here).
+  exact up to the gyro's scale-factor error (ADIS16488: 1 %, 1σ), which scales the
+  integrated sway. The track references below cannot see it (they only know the slow
+  mean); an external attitude (the lamps') can, while the platform sways, so it is
+  estimated as three more states.
 * Slow attitude comes from the *track*: on a known alignment the platform's roll,
   pitch and heading relative to the track have a zero slow mean at speed (plus a known
   heading offset), so each is pulled toward the track attitude with a long time
@@ -53,6 +57,11 @@ from imu_compensator.core.rotations import (quat_from_rotvec, quat_from_rpy, qua
                                             quat_normalize, quat_to_matrix)
 
 GRAVITY_MPS2 = 9.80665
+#: Error state: attitude about the map axes (3), gyro bias (3), gyro scale factors (3).
+N_STATES = 9
+#: An aid "sees" a pull axis when its information along it is at least 1/this², rad
+#: (see ``pull_pause_after_aiding_s``).
+AIDED_AXIS_STD_RAD = 0.5 * math.pi / 180.0
 #: Time constant with which the running sway level of the pull gate is forgotten, s.
 SWAY_MEMORY_S = 600.0
 #: The sway gate looks at this newest fraction of the pull window: less lag when the
@@ -76,6 +85,10 @@ class AttitudeFilterConfig:
         Bias the filter starts from, rad/s (a calibration, if one is known).
     initial_gyro_bias_std_rps : float
         1σ of the bias at start, rad/s. ADIS16488 turn-on bias: 0.2 °/s.
+    gyro_scale_factor_std : float
+        1σ of each gyro axis' scale-factor error at start (ADIS16488: 1 %); estimated
+        as three more states, observable only through attitude aiding while the
+        platform sways; 0 = not estimated.
     initial_attitude_std_rad : tuple of 3 floats
         1σ of roll, pitch, heading at a cold start, rad: the filter starts at the
         track attitude, but a moving platform may be anywhere in its sway envelope, so
@@ -112,6 +125,13 @@ class AttitudeFilterConfig:
         then would leave ≈ 0.3° of error for the whole following standstill. 0 disables.
     pull_min_sway_rps : float
         Absolute floor of that gate, rad/s (well above the gyro noise).
+    pull_pause_after_aiding_s : float
+        A pull (roll, pitch or heading) pauses for this long after an external aiding
+        that sees its axis (information along it of at least 1/``AIDED_AXIS_STD_RAD``²),
+        s; 0 = never. An aid measures the attitude itself, the pull only its slow mean
+        with the sway leaking in (its gain grows with the attitude variance, e.g. the
+        scale factors' share of it), so where lamps are in view the pulls add error;
+        they resume in a lamp outage, and a heading-only aid leaves the tilt pulls on.
     track_roll_rad, track_pitch_rad, track_heading_rad : float
         Track attitude in ``map`` (cant, grade as nose-down pitch, direction); 0, 0, 0
         on the default straight level track.
@@ -135,6 +155,7 @@ class AttitudeFilterConfig:
     gyro_bias_random_walk_rps2_rthz: float = 2.0e-6
     initial_gyro_bias_rps: tuple = (0.0, 0.0, 0.0)
     initial_gyro_bias_std_rps: float = 0.2 * _DEG
+    gyro_scale_factor_std: float = 0.02
     initial_attitude_std_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
     aligned_attitude_std_rad: tuple = (0.02 * _DEG, 0.02 * _DEG, 0.02 * _DEG)
     tilt_time_constant_s: float = 10.0
@@ -143,6 +164,7 @@ class AttitudeFilterConfig:
     pull_hold_s: float = 6.0
     pull_min_sway_ratio: float = 0.8
     pull_min_sway_rps: float = 0.02
+    pull_pause_after_aiding_s: float = 4.0
     track_roll_rad: float = 0.0
     track_pitch_rad: float = 0.0
     track_heading_rad: float = 0.0
@@ -156,7 +178,8 @@ class AttitudeFilterConfig:
     def __post_init__(self):
         positive = ('gyro_noise_density_rps_rthz', 'initial_gyro_bias_std_rps',
                     'pull_window_s', 'gravity_gate_mps2', 'update_period_s', 'gravity_mps2')
-        non_negative = ('gyro_bias_random_walk_rps2_rthz', 'tilt_time_constant_s', 'pull_hold_s',
+        non_negative = ('gyro_bias_random_walk_rps2_rthz', 'gyro_scale_factor_std',
+                        'tilt_time_constant_s', 'pull_hold_s', 'pull_pause_after_aiding_s',
                         'pull_min_sway_rps', 'pull_min_sway_ratio',
                         'heading_time_constant_s', 'gravity_time_constant_s')
         for name in positive:
@@ -231,16 +254,23 @@ class AttitudeFilter:
         att_std = c.aligned_attitude_std_rad if aligned else c.initial_attitude_std_rad
         self.gyro_bias_rps = np.array(bias, dtype=float)
         self._bias = self.gyro_bias_rps.tolist()
-        self.P = np.zeros((6, 6))
+        self.gyro_scale_error = np.zeros(3)
+        self._scale = [0.0, 0.0, 0.0]
+        self.P = np.zeros((N_STATES, N_STATES))
         self.P[:3, :3] = np.diag(np.square(att_std))
-        self.P[3:, 3:] = np.eye(3) * bias_std ** 2
+        self.P[3:6, 3:6] = np.eye(3) * bias_std ** 2
+        # The scale factors join at the first aiding (_activate_scale): nothing else
+        # sees them, and until then their variance would only inflate the attitude's.
+        self._scale_active = False
         self._last_gyro = None if gyro_rps is None else [float(v) for v in gyro_rps]
         self._reset_accumulators()
         self.initialized = True
 
     def _reset_accumulators(self):
-        # Covariance propagation pending since the last flush: Σ R_i·dt_i and Σ dt_i.
+        # Covariance propagation pending since the last flush: Σ R_i·dt_i, Σ R_i·diag(ω_i)·dt_i
+        # (the scale-factor coupling) and Σ dt_i.
         self._sum_r_dt = [0.0] * 9
+        self._sum_rw_dt = [0.0] * 9
         self._pending_dt = 0.0
         self._pending_bias_dt = 0.0
         self._pending_extra_var = 0.0
@@ -254,6 +284,7 @@ class AttitudeFilter:
         self._grav_moving = False
         self._since_update = 0.0
         self._since_pull = 0.0
+        self._since_aiding = [math.inf] * 3     # roll, pitch, heading pull axes
         self._moving_s = 0.0
         self._reset_pull()
 
@@ -334,6 +365,10 @@ class AttitudeFilter:
                 self._accumulate_pull(dt_s, sway2)
         self._since_update += dt_s
         self._since_pull += dt_s
+        since = self._since_aiding
+        since[0] += dt_s
+        since[1] += dt_s
+        since[2] += dt_s
         if self._since_update >= c.update_period_s:
             self._since_update = 0.0
             self._flush_covariance()
@@ -348,11 +383,13 @@ class AttitudeFilter:
     def _propagate(self, gx, gy, gz, dt):
         prev = self._last_gyro or (gx, gy, gz)
         self._last_gyro = (gx, gy, gz)
-        b = self._bias
-        # Trapezoidal rate over the interval, minus the bias; q ← q ⊗ Exp(ω·dt).
-        wx = (0.5 * (prev[0] + gx) - b[0]) * dt
-        wy = (0.5 * (prev[1] + gy) - b[1]) * dt
-        wz = (0.5 * (prev[2] + gz) - b[2]) * dt
+        b, k = self._bias, self._scale
+        # Trapezoidal rate over the interval, minus the bias, over the scale factor;
+        # q ← q ⊗ Exp(ω·dt).
+        ox = (0.5 * (prev[0] + gx) - b[0]) * (1.0 - k[0])
+        oy = (0.5 * (prev[1] + gy) - b[1]) * (1.0 - k[1])
+        oz = (0.5 * (prev[2] + gz) - b[2]) * (1.0 - k[2])
+        wx, wy, wz = ox * dt, oy * dt, oz * dt
         angle = math.sqrt(wx * wx + wy * wy + wz * wz)
         if angle > 1e-12:
             s = math.sin(0.5 * angle) / angle
@@ -366,6 +403,8 @@ class AttitudeFilter:
              2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
         self._step_r = r
         self._sum_r_dt = [a + b * dt for a, b in zip(self._sum_r_dt, r)]
+        self._sum_rw_dt = [a + b * w for a, b, w in zip(
+            self._sum_rw_dt, r, (wx, wy, wz, wx, wy, wz, wx, wy, wz))]
         self._pending_dt += dt
         qx = w * dx + x * dw + y * dz - z * dy
         qy = w * dy - x * dz + y * dw + z * dx
@@ -377,25 +416,24 @@ class AttitudeFilter:
     def _flush_covariance(self):
         """P ← F P Fᵀ + Q for the samples since the last flush.
 
-        F = [[I, −Σ R_i dt_i], [0, I]] (map-frame attitude error, body-frame bias); the
-        product of such matrices adds their off-diagonal blocks, so it is exact.
+        F = [[I, −Σ R_i dt_i, −Σ R_i diag(ω_i) dt_i], [0, I, 0], [0, 0, I]] (map-frame
+        attitude error, body-frame bias, gyro scale-factor errors); the product of such
+        matrices adds their off-diagonal blocks, so it is exact.
         """
         if self._pending_bias_dt <= 0.0:
             return
         c = self.config
-        m = -np.array(self._sum_r_dt).reshape(3, 3)
-        a, b, cc = self.P[:3, :3], self.P[:3, 3:], self.P[3:, 3:]
-        mb = m @ b.T
-        a_new = a + mb + mb.T + m @ cc @ m.T
-        a_new += np.eye(3) * (c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
-                              + self._pending_extra_var)
-        b_new = b + m @ cc
-        self.P[:3, :3] = a_new
-        self.P[:3, 3:] = b_new
-        self.P[3:, :3] = b_new.T
-        self.P[3:, 3:] = cc + np.eye(3) * (c.gyro_bias_random_walk_rps2_rthz ** 2
-                                           * self._pending_bias_dt)
+        f = np.eye(N_STATES)
+        f[:3, 3:6] = -np.array(self._sum_r_dt).reshape(3, 3)
+        f[:3, 6:] = -np.array(self._sum_rw_dt).reshape(3, 3)
+        p = f @ self.P @ f.T
+        p[:3, :3] += np.eye(3) * (c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
+                                  + self._pending_extra_var)
+        p[3:6, 3:6] += np.eye(3) * (c.gyro_bias_random_walk_rps2_rthz ** 2
+                                    * self._pending_bias_dt)
+        self.P = 0.5 * (p + p.T)
         self._sum_r_dt = [0.0] * 9
+        self._sum_rw_dt = [0.0] * 9
         self._pending_dt = 0.0
         self._pending_bias_dt = 0.0
         self._pending_extra_var = 0.0
@@ -468,25 +506,27 @@ class AttitudeFilter:
         # Mean innovation over the window, shifted by the corrections made since.
         mean = [self._pull_sum[k] / n - corr[k] for k in range(3)]
         lag, beta = self._pull_lag()
-        roll, pitch, yaw = _rpy_of(*self._q)
-        sy, cy = math.sin(yaw), math.cos(yaw)
-        sp, cp = math.sin(pitch), math.cos(pitch)
-        rows = []  # (map-frame axis, innovation, τ)
-        if c.tilt_time_constant_s > 0.0:
-            # Map-frame axes of a roll and a pitch increment of R = Rz·Ry·Rx: Rz·Ry·x̂
-            # and Rz·ŷ (exact for this parametrisation).
-            rows.append(([cy * cp, sy * cp, -sp], mean[0], c.tilt_time_constant_s))
-            rows.append(([-sy, cy, 0.0], mean[1], c.tilt_time_constant_s))
-        if c.heading_time_constant_s > 0.0:
-            rows.append(([0.0, 0.0, 1.0], mean[2], c.heading_time_constant_s))
+        axes = self._pull_axes()
+        taus = (c.tilt_time_constant_s, c.tilt_time_constant_s, c.heading_time_constant_s)
+        rows = [(axes[k], mean[k], taus[k]) for k in range(3)   # (map-frame axis, z, τ)
+                if taus[k] > 0.0 and self._since_aiding[k] >= c.pull_pause_after_aiding_s]
         if not rows:
             return
-        h = np.zeros((len(rows), 6))
+        h = np.zeros((len(rows), N_STATES))
         h[:, :3] = [r[0] for r in rows]
-        h[:, 3:] = h[:, :3] @ lag
+        h[:, 3:6] = h[:, :3] @ lag
         tau = np.array([r[2] for r in rows])
         var = c.gyro_noise_density_rps_rthz ** 2 * tau ** 2 / period_s
-        self._update(h, np.array([r[1] for r in rows]) - h[:, :3] @ beta, var)
+        self._update(h, np.array([r[1] for r in rows]) - h[:, :3] @ beta, var,
+                     estimate_scale=False)
+
+    def _pull_axes(self):
+        """Map-frame axes (3, 3) of a roll, a pitch and a heading increment of the current
+        R = Rz·Ry·Rx: Rz·Ry·x̂, Rz·ŷ, ẑ (exact for this parametrisation)."""
+        _, pitch, yaw = _rpy_of(*self._q)
+        sy, cy = math.sin(yaw), math.cos(yaw)
+        sp, cp = math.sin(pitch), math.cos(pitch)
+        return np.array([[cy * cp, sy * cp, -sp], [-sy, cy, 0.0], [0.0, 0.0, 1.0]])
 
     def _apply_zero_rate(self, sample_rate_hz):
         """Zero-angular-rate update: standing, the mean gyro reading is its bias."""
@@ -497,9 +537,10 @@ class AttitudeFilter:
         mean = np.array(self._zaru_sum) / n
         self._zaru_sum = [0.0, 0.0, 0.0]
         self._zaru_n = 0
-        h = np.zeros((3, 6))
-        h[:, 3:] = np.eye(3)
-        self._update(h, mean - self.gyro_bias_rps, np.full(3, std ** 2 / n))
+        h = np.zeros((3, N_STATES))
+        h[:, 3:6] = np.eye(3)
+        self._update(h, mean - self.gyro_bias_rps, np.full(3, std ** 2 / n),
+                     estimate_scale=False)
 
     def _apply_gravity(self):
         """Optional tilt update from the mean specific force of the update period.
@@ -523,10 +564,11 @@ class AttitudeFilter:
         resid = np.cross(u, [0.0, 0.0, 1.0])
         along = np.array([math.cos(c.track_heading_rad), math.sin(c.track_heading_rad), 0.0])
         axes = [along] if moving else [along, np.array([-along[1], along[0], 0.0])]
-        h = np.zeros((len(axes), 6))
+        h = np.zeros((len(axes), N_STATES))
         h[:, :3] = axes
         var = c.gyro_noise_density_rps_rthz ** 2 * c.gravity_time_constant_s ** 2 / duration
-        self._update(h, np.array([a @ resid for a in axes]), np.full(len(axes), var))
+        self._update(h, np.array([a @ resid for a in axes]), np.full(len(axes), var),
+                     estimate_scale=False)
 
     def update_heading(self, yaw_innovation_rad, variance_rad2):
         """External heading aiding: ``yaw_innovation_rad = yaw_measured − yaw_estimated``.
@@ -536,7 +578,10 @@ class AttitudeFilter:
         delayed measurement corrects the current state without re-filtering.
         """
         self._flush_covariance()
-        h = np.zeros((1, 6))
+        self._activate_scale()
+        if variance_rad2 <= AIDED_AXIS_STD_RAD ** 2:
+            self._since_aiding[2] = 0.0
+        h = np.zeros((1, N_STATES))
         h[0, 2] = 1.0
         self._update(h, np.array([_wrap(float(yaw_innovation_rad))]), np.array([variance_rad2]))
 
@@ -547,18 +592,40 @@ class AttitudeFilter:
         an axis the measurement cannot see). Same timing rule as :meth:`update_heading`.
         """
         self._flush_covariance()
-        h = np.zeros((3, 6))
+        self._activate_scale()
+        info = np.linalg.inv(np.asarray(covariance_rad2, float).reshape(3, 3))
+        for k, axis in enumerate(self._pull_axes()):
+            if axis @ info @ axis >= AIDED_AXIS_STD_RAD ** -2:
+                self._since_aiding[k] = 0.0
+        h = np.zeros((3, N_STATES))
         h[:, :3] = np.eye(3)
         self._update(h, np.asarray(innovation_rad, float).reshape(3),
                      np.asarray(covariance_rad2, float).reshape(3, 3))
 
-    def _update(self, h, innovation, variance):
-        """Kalman update with H (m, 6), innovation (m,) and R: diagonal (m,) or full
-        (m, m); Joseph form."""
+    def _activate_scale(self):
+        """At the first external aiding: the scale factors become states (their prior
+        variance ``gyro_scale_factor_std``²). Only aiding observes them, and an unaided
+        filter keeps exactly its attitude-and-bias behaviour."""
+        if not self._scale_active and self.config.gyro_scale_factor_std > 0.0:
+            self._scale_active = True
+            self.P[6:, 6:] = np.eye(3) * self.config.gyro_scale_factor_std ** 2
+
+    def _update(self, h, innovation, variance, estimate_scale=True):
+        """Kalman update with H (m, N_STATES), innovation (m,) and R: diagonal (m,) or full
+        (m, m); Joseph form.
+
+        ``estimate_scale=False`` keeps the scale factors as consider states (Schmidt):
+        their gain rows are zeroed and the Joseph form keeps P consistent. The track
+        pulls, zero-rate and gravity updates do so: they do not see the scale (standing
+        there is no rate; the pulls know only the slow mean and their window mean does
+        not model the scale's share), so only attitude and heading aiding estimate it.
+        """
         r = np.diag(variance) if np.ndim(variance) == 1 else variance
         ph = self.P @ h.T
         s = h @ ph + r
         gain = np.linalg.solve(s, ph.T).T
+        if not estimate_scale:
+            gain[6:, :] = 0.0
         dx = gain @ innovation
         before = _rpy_of(*self._q)
         q = quat_multiply(quat_from_rotvec(dx[:3]), np.array(self._q))
@@ -566,19 +633,25 @@ class AttitudeFilter:
         after = _rpy_of(*self._q)
         for k in range(3):
             self._corr[k] += _wrap(after[k] - before[k])
-        self.gyro_bias_rps = self.gyro_bias_rps + dx[3:]
+        self.gyro_bias_rps = self.gyro_bias_rps + dx[3:6]
         self._bias = self.gyro_bias_rps.tolist()
+        self.gyro_scale_error = self.gyro_scale_error + dx[6:]
+        self._scale = self.gyro_scale_error.tolist()
         # Lag bookkeeping of the pull window: fold ∫R·CB dt up to now into G_ref, then
         # add this correction to CB.
         m = np.array(self._cum_a).reshape(3, 3) - np.array(self._a_ref).reshape(3, 3)
         self._g_ref = (np.array(self._g_ref) + m @ np.array(self._bias_corr)).tolist()
         self._a_ref = list(self._cum_a)
-        self._bias_corr = (np.array(self._bias_corr) + dx[3:]).tolist()
-        ikh = np.eye(6) - gain @ h
+        self._bias_corr = (np.array(self._bias_corr) + dx[3:6]).tolist()
+        ikh = np.eye(N_STATES) - gain @ h
         p = ikh @ self.P @ ikh.T + gain @ r @ gain.T
         self.P = 0.5 * (p + p.T)
 
     # ------------------------------------------------------------------ outputs
+    def corrected_rate(self, gyro_rps):
+        """Angular rate (3,) of a gyro reading with the estimated bias and scale removed."""
+        return (np.asarray(gyro_rps, float) - self.gyro_bias_rps) * (1.0 - self.gyro_scale_error)
+
     @property
     def quat(self):
         """Attitude (4,) x, y, z, w of ``base_link`` in ``map``, w ≥ 0."""
@@ -606,4 +679,4 @@ class AttitudeFilter:
     @property
     def gyro_bias_std_rps(self):
         """1σ of the gyro bias estimate per axis (3,), rad/s."""
-        return np.sqrt(np.diag(self.P[3:, 3:]))
+        return np.sqrt(np.diag(self.P[3:6, 3:6]))

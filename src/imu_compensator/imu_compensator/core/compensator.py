@@ -259,7 +259,7 @@ class AttitudeCompensator:
         quat = self.filter.quat.copy()
         cov = self.filter.attitude_covariance
         self.history.push(t_s, quat)
-        return SampleResult(status, t_s, dt, quat, cov, gyro - self.filter.gyro_bias_rps,
+        return SampleResult(status, t_s, dt, quat, cov, self.filter.corrected_rate(gyro),
                             accel, stationary)
 
     # ------------------------------------------------------------------ aiding
