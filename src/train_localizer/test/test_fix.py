@@ -8,8 +8,9 @@ from vlc_stereo_camera.core.camera import StereoRig
 from vlc_stereo_camera.core.geometry import rpy_to_matrix
 from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
 
-from train_localizer.core.fix import (FixConfig, RigGeometry, constrained_fix,
-                                      measurement_time_ns, paper_fix, triangulate)
+from train_localizer.core.fix import (FixConfig, RigGeometry, constrained_fix, exp_so3,
+                                      measurement_time_ns, paper_fix, triangulate,
+                                      vision_attitude)
 from train_localizer.core.observation import LampObservation
 
 DEG = math.pi / 180.0
@@ -158,3 +159,25 @@ def test_measurement_time_is_the_spot_rows_exposure_mid_time():
     assert measurement_time_ns(obs, GEOM, use_exposure_stamping=False) == 1_000_000_000
     obs.exposure_mid_offset_s = 0.004
     assert measurement_time_ns(obs, GEOM) == 1_004_000_000
+
+
+@pytest.mark.parametrize('dx', [1.5, 5.0, 8.5])
+@pytest.mark.parametrize('err_deg', [(0.0, 0.0, 30.0), (1.0, -2.0, -30.0), (3.0, 3.0, 0.5)])
+def test_vision_attitude_recovers_the_attitude_without_the_imu_prior(dx, err_deg):
+    """The attitude one lamp shows (attitude_aiding) from an IMU attitude off by up to
+    30° of heading (a cold start on a curve): consistent with the truth in its own
+    covariance and, once the tilt is known, a tight heading. With an equally weak prior
+    on every axis the unseen share of a 30° heading error went into the tilt (6° of
+    roll) and wrecked the curved outage run."""
+    R_true = rpy_to_matrix(0.002, -0.001, 0.03)
+    delta = np.array(err_deg) * DEG
+    R_est = rpy_to_matrix(*delta) @ R_true
+    base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    p_cam, cov = triangulate(observe(base, R_true), GEOM)
+    dtheta, cov_att = vision_attitude(p_cam, cov, LAMP.position_m, R_est, GEOM, FixConfig())
+    r = exp_so3(dtheta) @ R_est @ R_true.T          # aid vs truth
+    e = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    assert e @ np.linalg.solve(cov_att, e) < 11.3            # 3 dof, 99 %
+    # the tilt is not made worse than the IMU's own (the unseen share stays where it was)
+    assert np.abs(e[:2]).max() <= np.abs(delta[:2]).max() + 1.0 * DEG
+    assert 1.0 / np.sqrt(np.linalg.inv(cov_att)[2, 2]) < 0.3 * DEG

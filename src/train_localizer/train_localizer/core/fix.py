@@ -389,16 +389,19 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     return s, dtheta, np.linalg.inv(N), J, W, r, prior_info
 
 
-#: 1σ of the weak prior that bounds the attitude direction a lamp cannot see (rotation
-#: about its line of sight) in :func:`vision_attitude`, rad.
-VISION_ATTITUDE_PRIOR_SIGMA_RAD = 0.2
+#: 1σ (roll, pitch, heading) of the weak prior, centred on the IMU attitude, that bounds
+#: the attitude direction a lamp cannot see (rotation about its line of sight) in
+#: :func:`vision_attitude`, rad. Tilt errors stay within degrees; the heading of a
+#: compensator that cold-started on a curve can be tens of degrees off, and a prior
+#: that resisted it would push the unseen share of that error into the tilt.
+VISION_ATTITUDE_PRIOR_SIGMA_RAD = (0.2, 0.2, 1.0)
 
 
 def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config):
     """Attitude error of the IMU seen by one lamp, without the IMU's attitude prior.
 
     The fit of :func:`constrained_fix` with the IMU prior replaced by a weak one
-    (:data:`VISION_ATTITUDE_PRIOR_SIGMA_RAD` on every axis): the lamp's range fixes the
+    (:data:`VISION_ATTITUDE_PRIOR_SIGMA_RAD`): the lamp's range fixes the
     chainage and its direction two attitude angles — rotations about the line of sight
     stay unseen, and keep the weak prior's variance. The result is a measurement
     independent of the IMU attitude it corrects (for ``attitude_aiding``: the
@@ -412,7 +415,7 @@ def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, confi
         ``δθ`` about the map axes (true attitude = Exp(δθ)·IMU attitude) and its
         covariance, rad².
     """
-    cov_prior = np.eye(3) * VISION_ATTITUDE_PRIOR_SIGMA_RAD ** 2
+    cov_prior = np.diag(np.square(VISION_ATTITUDE_PRIOR_SIGMA_RAD))
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
                         config)
     return np.asarray(fit[1], float), np.asarray(fit[2][1:, 1:], float)
