@@ -35,6 +35,9 @@ import time
 import numpy as np
 import yaml
 
+from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
+from imu_compensator.core.rotations import quat_to_rpy
+
 from . import conversions
 from .bagtools.bagio import open_bag
 from .core.join import FrameJoiner
@@ -122,8 +125,6 @@ class CompensatorLoop:
 
     def add_raw(self, msg):
         """One ``imu/data_raw`` message; the ``ImuSample`` the localizer gets, or None."""
-        from imu_compensator.conversions import fill_imu_data, imu_sample
-        from imu_compensator.core.rotations import quat_to_rpy
         t_s, gyro, accel = imu_sample(msg)
         result = self.compensator.process(t_s, gyro, accel)
         if not result.status.accepted:
@@ -136,7 +137,6 @@ class CompensatorLoop:
 
     def add_aids(self, report, map_frame='map'):
         """Fuse the report's attitude aids as the compensator node receives them."""
-        from imu_compensator.conversions import fuse_aiding
         for aid in report.attitude_aids:
             fuse_aiding(self.compensator, conversions.attitude_aid_message(aid, map_frame),
                         self.config.heading_aiding_std_rad)

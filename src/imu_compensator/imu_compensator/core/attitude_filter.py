@@ -284,7 +284,10 @@ class AttitudeFilter:
         self._grav_moving = False
         self._since_update = 0.0
         self._since_pull = 0.0
-        self._since_aiding = [math.inf] * 3     # roll, pitch, heading pull axes
+        # Filter time since the accumulators were reset, and when an aid last saw the
+        # roll, pitch and heading pull axes (see pull_pause_after_aiding_s).
+        self._clock_s = 0.0
+        self._aided_at_s = [-math.inf] * 3
         self._moving_s = 0.0
         self._reset_pull()
 
@@ -365,10 +368,7 @@ class AttitudeFilter:
                 self._accumulate_pull(dt_s, sway2)
         self._since_update += dt_s
         self._since_pull += dt_s
-        since = self._since_aiding
-        since[0] += dt_s
-        since[1] += dt_s
-        since[2] += dt_s
+        self._clock_s += dt_s
         if self._since_update >= c.update_period_s:
             self._since_update = 0.0
             self._flush_covariance()
@@ -479,12 +479,15 @@ class AttitudeFilter:
         mean over i of ∫_{t_i}^{now} R·(CB_now − CB(t)) dt.
         """
         n = len(self._pull_ring)
-        s, cum, cb = self._pull_sum, self._cum_a, self._bias_corr
+        s, cum = self._pull_sum, self._cum_a
         m = np.array([cum[k] - s[4 + k] / n for k in range(9)]).reshape(3, 3)
-        g_now = np.array(self._g_ref) + (np.array(cum) - np.array(self._a_ref)).reshape(3, 3) \
-            @ np.array(cb)
-        beta = m @ np.array(cb) - (g_now - np.array(s[13:16]) / n)
+        beta = m @ np.array(self._bias_corr) - (self._g_now() - np.array(s[13:16]) / n)
         return m, beta
+
+    def _g_now(self):
+        """G = ∫R·CB dt up to now (3,), as G_ref + (A − A_ref)·CB (see _reset_pull)."""
+        m = np.array(self._cum_a).reshape(3, 3) - np.array(self._a_ref).reshape(3, 3)
+        return np.array(self._g_ref) + m @ np.array(self._bias_corr)
 
     def _at_speed(self):
         """Sway gate of the pulls (see ``pull_min_sway_ratio``), updating the reference."""
@@ -509,7 +512,8 @@ class AttitudeFilter:
         axes = self._pull_axes()
         taus = (c.tilt_time_constant_s, c.tilt_time_constant_s, c.heading_time_constant_s)
         rows = [(axes[k], mean[k], taus[k]) for k in range(3)   # (map-frame axis, z, τ)
-                if taus[k] > 0.0 and self._since_aiding[k] >= c.pull_pause_after_aiding_s]
+                if taus[k] > 0.0
+                and self._clock_s - self._aided_at_s[k] >= c.pull_pause_after_aiding_s]
         if not rows:
             return
         h = np.zeros((len(rows), N_STATES))
@@ -580,7 +584,7 @@ class AttitudeFilter:
         self._flush_covariance()
         self._activate_scale()
         if variance_rad2 <= AIDED_AXIS_STD_RAD ** 2:
-            self._since_aiding[2] = 0.0
+            self._aided_at_s[2] = self._clock_s
         h = np.zeros((1, N_STATES))
         h[0, 2] = 1.0
         self._update(h, np.array([_wrap(float(yaw_innovation_rad))]), np.array([variance_rad2]))
@@ -596,7 +600,7 @@ class AttitudeFilter:
         info = np.linalg.inv(np.asarray(covariance_rad2, float).reshape(3, 3))
         for k, axis in enumerate(self._pull_axes()):
             if axis @ info @ axis >= AIDED_AXIS_STD_RAD ** -2:
-                self._since_aiding[k] = 0.0
+                self._aided_at_s[k] = self._clock_s
         h = np.zeros((3, N_STATES))
         h[:, :3] = np.eye(3)
         self._update(h, np.asarray(innovation_rad, float).reshape(3),
@@ -639,8 +643,7 @@ class AttitudeFilter:
         self._scale = self.gyro_scale_error.tolist()
         # Lag bookkeeping of the pull window: fold ∫R·CB dt up to now into G_ref, then
         # add this correction to CB.
-        m = np.array(self._cum_a).reshape(3, 3) - np.array(self._a_ref).reshape(3, 3)
-        self._g_ref = (np.array(self._g_ref) + m @ np.array(self._bias_corr)).tolist()
+        self._g_ref = self._g_now().tolist()
         self._a_ref = list(self._cum_a)
         self._bias_corr = (np.array(self._bias_corr) + dx[3:6]).tolist()
         ikh = np.eye(N_STATES) - gain @ h

@@ -765,13 +765,14 @@ class Localizer:
             return
         dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
                                       cfg.geometry, cfg.fix)
+        cov = 0.5 * (cov + cov.T)
         if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
-                and np.all(np.linalg.eigvalsh(0.5 * (cov + cov.T)) > 0.0)):
+                and np.all(np.linalg.eigvalsh(cov) > 0.0)):
             return
         self._last_aid_ns = prep.t_ns
         report.attitude_aids.append(AttitudeAid(prep.t_ns,
                                                 matrix_to_quat_xyzw(exp_so3(dtheta) @ prep.R),
-                                                0.5 * (cov + cov.T), fix.chainage_m))
+                                                cov, fix.chainage_m))
 
     def _geometry_rejected(self, prep, lamp, fix, report):
         self.monitor.on_geometry_rejected(prep.t_ns, prep.obs.uid, fix.chi2_geometry)
