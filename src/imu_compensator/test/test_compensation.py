@@ -125,3 +125,17 @@ def test_aided_heading_does_not_follow_a_wrong_heading_offset():
     plain = simulate(Scenario('cold', 'cold_start', 80.0, duration_s=60.0, settle_s=50.0),
                      seed=1, filter_config=wrong)
     assert score(plain)['after']['rms_deg'][2] > 1.0
+
+
+def test_unaided_heading_covariance_carries_the_gyro_scale_share():
+    # Seed 3's gyro z reads +2.3 % (1.2σ of the filter's 2 % prior): unaided, that scales
+    # the integrated sway into heading error the filter cannot see. The published
+    # covariance must say so (it claimed ~0.02° while 0.18° off: a quarter of the
+    # samples beyond 3σ), though the scale factors only join the estimate at the first
+    # aid.
+    r = simulate(departure(40.0, 5.0, 10.0), seed=3)
+    moving = ~r['stationary']
+    z = np.abs(r['after_deg'][moving, 2]) / r['sigma_deg'][moving, 2]
+    assert np.abs(r['after_deg'][moving, 2]).max() > 0.1     # the scale share is there
+    assert np.mean(z > 3.0) <= 0.01
+    assert z.max() < 5.0

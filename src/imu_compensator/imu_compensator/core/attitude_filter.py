@@ -259,9 +259,18 @@ class AttitudeFilter:
         self.P = np.zeros((N_STATES, N_STATES))
         self.P[:3, :3] = np.diag(np.square(att_std))
         self.P[3:6, 3:6] = np.eye(3) * bias_std ** 2
-        # The scale factors join at the first aiding (_activate_scale): nothing else
-        # sees them, and until then their variance would only inflate the attitude's.
+        # The scale factors join the estimate at the first aiding (_activate_scale):
+        # nothing else sees them, and their variance in P would change the gains of the
+        # pulls, which are not optimal measurements. Until then _P_true carries them: P
+        # with the scale prior, propagated alike and updated with the same gains
+        # (consider covariance), so the published attitude covariance includes the
+        # share of the integrated sway that the scale factors leave unknown, and the
+        # first aid finds the attitude-scale correlation already built.
         self._scale_active = False
+        self._P_true = None
+        if self.config.gyro_scale_factor_std > 0.0:
+            self._P_true = self.P.copy()
+            self._P_true[6:, 6:] = np.eye(3) * self.config.gyro_scale_factor_std ** 2
         self._last_gyro = None if gyro_rps is None else [float(v) for v in gyro_rps]
         self._reset_accumulators()
         self.initialized = True
@@ -426,12 +435,16 @@ class AttitudeFilter:
         f = np.eye(N_STATES)
         f[:3, 3:6] = -np.array(self._sum_r_dt).reshape(3, 3)
         f[:3, 6:] = -np.array(self._sum_rw_dt).reshape(3, 3)
-        p = f @ self.P @ f.T
-        p[:3, :3] += np.eye(3) * (c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
-                                  + self._pending_extra_var)
-        p[3:6, 3:6] += np.eye(3) * (c.gyro_bias_random_walk_rps2_rthz ** 2
-                                    * self._pending_bias_dt)
-        self.P = 0.5 * (p + p.T)
+        q_att = c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt + self._pending_extra_var
+        q_bias = c.gyro_bias_random_walk_rps2_rthz ** 2 * self._pending_bias_dt
+        for name in ('P', '_P_true'):
+            current = getattr(self, name)
+            if current is None:
+                continue
+            p = f @ current @ f.T
+            p[:3, :3] += np.eye(3) * q_att
+            p[3:6, 3:6] += np.eye(3) * q_bias
+            setattr(self, name, 0.5 * (p + p.T))
         self._sum_r_dt = [0.0] * 9
         self._sum_rw_dt = [0.0] * 9
         self._pending_dt = 0.0
@@ -607,12 +620,13 @@ class AttitudeFilter:
                      np.asarray(covariance_rad2, float).reshape(3, 3))
 
     def _activate_scale(self):
-        """At the first external aiding: the scale factors become states (their prior
-        variance ``gyro_scale_factor_std``²). Only aiding observes them, and an unaided
-        filter keeps exactly its attitude-and-bias behaviour."""
-        if not self._scale_active and self.config.gyro_scale_factor_std > 0.0:
+        """At the first external aiding: the scale factors become states, with the
+        consider covariance ``_P_true`` (their prior, propagated and updated alongside P)
+        as the filter's covariance from then on. Only aiding observes them, and an
+        unaided filter keeps exactly its attitude-and-bias estimates."""
+        if not self._scale_active and self._P_true is not None:
             self._scale_active = True
-            self.P[6:, 6:] = np.eye(3) * self.config.gyro_scale_factor_std ** 2
+            self.P, self._P_true = self._P_true, None
 
     def _update(self, h, innovation, variance, estimate_scale=True):
         """Kalman update with H (m, N_STATES), innovation (m,) and R: diagonal (m,) or full
@@ -647,8 +661,11 @@ class AttitudeFilter:
         self._a_ref = list(self._cum_a)
         self._bias_corr = (np.array(self._bias_corr) + dx[3:6]).tolist()
         ikh = np.eye(N_STATES) - gain @ h
-        p = ikh @ self.P @ ikh.T + gain @ r @ gain.T
-        self.P = 0.5 * (p + p.T)
+        for name in ('P', '_P_true'):
+            current = getattr(self, name)
+            if current is not None:
+                p = ikh @ current @ ikh.T + gain @ r @ gain.T
+                setattr(self, name, 0.5 * (p + p.T))
 
     # ------------------------------------------------------------------ outputs
     def corrected_rate(self, gyro_rps):
@@ -675,7 +692,7 @@ class AttitudeFilter:
         """
         pending = (self.config.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
                    + self._pending_extra_var)
-        cov = self.P[:3, :3].copy()
+        cov = (self.P if self._P_true is None else self._P_true)[:3, :3].copy()
         cov.flat[::4] += pending
         return cov
 
