@@ -4,6 +4,7 @@ import json
 import pytest
 
 from train_localizer.evaluation import report, scenarios
+from vlc_stereo_camera.core import lamp_map
 
 
 def _static_results():
@@ -120,6 +121,15 @@ def test_scenario_lists_cover_the_protocols():
     dynamic = scenarios.dynamic_scenarios()
     assert len(dynamic) == 60
     assert {s.speed_kmh for s in dynamic} == {20.0, 40.0, 60.0, 80.0, 100.0, 120.0}
+    # Each run starts just past a lamp of the map (the next in view at once), and after
+    # its unscored lead-in (two cells, and 3 s at speed) four lamp cells are scored.
+    lamps_x = lamp_map.straight_tunnel_map().positions[:, 0]
+    for s in dynamic:
+        assert 0.0 < s.start_chainage_m - lamps_x[lamps_x <= s.start_chainage_m].max() <= 1.0
+        v = s.speed_kmh / 3.6
+        settle_s = scenarios.dynamic_settle_s(s.speed_kmh)
+        assert settle_s * v >= 20.0 - 1e-9 and settle_s >= scenarios.LEAD_IN_S - 1e-9
+        assert s.duration_s * v - settle_s * v == pytest.approx(41.0)
 
 
 def test_update_markdown_replaces_only_the_marked_section(tmp_path):

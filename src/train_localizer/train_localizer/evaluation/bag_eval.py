@@ -178,6 +178,13 @@ def score_run(run, lamp_chainages, settle_s=0.0):
     return out
 
 
+def heading_max_abs(run, t_from, t_to):
+    """Largest |compensated − true heading| (deg) stamped in [t_from, t_to); None if none."""
+    t, after, _ = heading_errors(run)
+    inside = (t >= t_from) & (t < t_to)
+    return float(np.max(np.abs(after[inside]))) if inside.any() else None
+
+
 def _diag_values(run, node, key):
     """Numbers under ``key`` in every diagnostics status whose name starts with ``node``."""
     out = []

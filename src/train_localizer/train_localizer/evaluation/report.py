@@ -168,8 +168,9 @@ def _fmt(value, digits=2, scale=1.0):
 def dynamic_detail_table(results):
     """Per speed: every published pose, the covariance bound, heading compensation."""
     rows = ['| speed (km/h) | every pose: max (cm) | mean (cm) | poses within 3σ | heading '
-            'before (deg) | heading after: max abs (deg) | rms (deg) |',
-            '|---|---|---|---|---|---|---|']
+            'before (deg) | heading after: max abs (deg) | rms (deg) | cold start: heading '
+            'after, first pose to end of lead-in: max abs (deg) |',
+            '|---|---|---|---|---|---|---|---|']
     figures = {}
     for v, runs in _by_speed(results).items():
         maxes = [r['every_pose']['max_m'] for r in runs if r.get('every_pose')]
@@ -179,6 +180,8 @@ def dynamic_detail_table(results):
                if r.get('covariance_3sigma_fraction') is not None]
         before = [r['heading_before_deg'] for r in runs if r.get('heading_before_deg')]
         after = [r['heading_after_deg'] for r in runs if r.get('heading_after_deg')]
+        cold = [r['heading_cold_start_deg'] for r in runs
+                if r.get('heading_cold_start_deg') is not None]
         fig = {
             'every_pose_max_m': float(np.max(maxes)) if maxes else None,
             'every_pose_mean_m': (float(np.average(means, weights=counts))
@@ -188,14 +191,16 @@ def dynamic_detail_table(results):
             'heading_before_max_deg': max(b['max'] for b in before) if before else None,
             'heading_after_max_abs_deg': max(a['max_abs'] for a in after) if after else None,
             'heading_after_rms_deg': (float(np.sqrt(np.mean([a['rms'] ** 2 for a in after])))
-                                      if after else None)}
+                                      if after else None),
+            'heading_cold_start_max_abs_deg': max(cold) if cold else None}
         figures[v] = fig
         before_txt = (f'{fig["heading_before_min_deg"]:+.2f} … '
                       f'{fig["heading_before_max_deg"]:+.2f}' if before else '–')
         rows.append(f'| {v} | {_cm(fig["every_pose_max_m"])} | {_cm(fig["every_pose_mean_m"])} | '
                     f'{_fmt(fig["covariance_3sigma_fraction"], 1, 100)} % | {before_txt} | '
                     f'{_fmt(fig["heading_after_max_abs_deg"], 3)} | '
-                    f'{_fmt(fig["heading_after_rms_deg"], 3)} |')
+                    f'{_fmt(fig["heading_after_rms_deg"], 3)} | '
+                    f'{_fmt(fig["heading_cold_start_max_abs_deg"], 3)} |')
     return '\n'.join(rows), figures
 
 
