@@ -122,6 +122,27 @@ def test_heading_errors_before_and_after():
     assert scores['heading_before_deg']['max'] == pytest.approx(0.0, abs=1e-9)
 
 
+def test_heading_settling_time():
+    from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw, rpy_to_matrix
+    t = np.linspace(0.0, 4.0, 401)
+    truth_q = np.array([matrix_to_quat_xyzw(rpy_to_matrix(0, 0, 0.0))] * t.size)
+
+    def run_with(err_deg):
+        est_q = np.array([matrix_to_quat_xyzw(rpy_to_matrix(0, 0, np.radians(e)))
+                          for e in err_deg])
+        return bag_eval.RunData(t, np.zeros((t.size, 3)), truth_q, np.zeros(0),
+                                np.zeros((0, 3)), imu_t=t, imu_quat=est_q)
+
+    # 3° at the cold start, decaying; back above the bound once at 1.5 s
+    err = 3.0 * np.exp(-3.0 * t)
+    err[(t > 1.495) & (t < 1.505)] = -0.25
+    assert bag_eval.heading_settling_s(run_with(err), 0.5) == pytest.approx(1.01, abs=1e-6)
+    assert bag_eval.heading_settling_s(run_with(err), 1.6) == 0.0
+    err[-1] = 0.3                                   # not within the bound at the end
+    assert bag_eval.heading_settling_s(run_with(err), 0.5) is None
+    assert bag_eval.heading_settling_s(run_with(err), 5.0) is None   # no sample after it
+
+
 def test_severity_of_a_degraded_run():
     assert not bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'compensator_gaps': 1})
     assert bag_eval.severely_degraded({'camera_lag_max_s': 0.3})

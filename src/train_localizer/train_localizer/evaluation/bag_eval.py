@@ -178,11 +178,21 @@ def score_run(run, lamp_chainages, settle_s=0.0):
     return out
 
 
-def heading_max_abs(run, t_from, t_to):
-    """Largest |compensated − true heading| (deg) stamped in [t_from, t_to); None if none."""
+def heading_settling_s(run, t_from, bound_deg=0.2):
+    """Time from ``t_from`` until |compensated − true heading| stays within ``bound_deg``
+    to the end of the run, s (0: within it all along; None: not within it at the end, or
+    no heading sample after ``t_from``)."""
     t, after, _ = heading_errors(run)
-    inside = (t >= t_from) & (t < t_to)
-    return float(np.max(np.abs(after[inside]))) if inside.any() else None
+    keep = t >= t_from
+    t, err = t[keep], np.abs(after[keep])
+    if not t.size:
+        return None
+    out = np.flatnonzero(err > bound_deg)
+    if not out.size:
+        return 0.0
+    if out[-1] == t.size - 1:
+        return None
+    return float(t[out[-1] + 1] - t_from)
 
 
 def _diag_values(run, node, key):

@@ -43,6 +43,7 @@ TEST_POINTS_M = tuple(np.round(np.arange(10.0, 0.0, -0.5), 1))
 SETTLE_CELLS = 2          # dynamic: lamp cells passed before scoring starts (cold start)
 LEAD_IN_S = 3.0           # ... and at least this long at speed (see lead_in_m)
 DYNAMIC_START_M = 10.5    # dynamic runs start 0.5 m past the map's first lamp (10 m)
+HEADING_BOUND_DEG = 0.2   # the compensated heading's bound (cold start: time to reach it)
 LAMP_X_M = 50.0          # the static protocol stands before the lamp at 50 m (UID 0x1005)
 
 
@@ -208,8 +209,8 @@ def score_dynamic(run, scenario, lamp_map, heading_plot=False):
         'covariance_3sigma_fraction': every.get('covariance_3sigma_fraction'),
         'heading_after_deg': every.get('heading_after_deg'),
         'heading_before_deg': every.get('heading_before_deg'),
-        'heading_cold_start_deg': bag_eval.heading_max_abs(
-            run, run.pose_t[0] if run.pose_t.size else np.inf, settle)})
+        'heading_settling_s': bag_eval.heading_settling_s(
+            run, run.pose_t[0] if run.pose_t.size else np.inf, HEADING_BOUND_DEG)})
     if heading_plot:
         out['heading_series'] = bag_eval.heading_series(run)
     return out
