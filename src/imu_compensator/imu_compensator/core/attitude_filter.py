@@ -266,7 +266,6 @@ class AttitudeFilter:
         # (consider covariance), so the published attitude covariance includes the
         # share of the integrated sway that the scale factors leave unknown, and the
         # first aid finds the attitude-scale correlation already built.
-        self._scale_active = False
         self._P_true = None
         if self.config.gyro_scale_factor_std > 0.0:
             self._P_true = self.P.copy()
@@ -437,14 +436,9 @@ class AttitudeFilter:
         f[:3, 6:] = -np.array(self._sum_rw_dt).reshape(3, 3)
         q_att = c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt + self._pending_extra_var
         q_bias = c.gyro_bias_random_walk_rps2_rthz ** 2 * self._pending_bias_dt
-        for name in ('P', '_P_true'):
-            current = getattr(self, name)
-            if current is None:
-                continue
-            p = f @ current @ f.T
-            p[:3, :3] += np.eye(3) * q_att
-            p[3:6, 3:6] += np.eye(3) * q_bias
-            setattr(self, name, 0.5 * (p + p.T))
+        q = np.zeros(N_STATES)
+        q[:3], q[3:6] = q_att, q_bias
+        self._map_covariances(lambda p: f @ p @ f.T + np.diag(q))
         self._sum_r_dt = [0.0] * 9
         self._sum_rw_dt = [0.0] * 9
         self._pending_dt = 0.0
@@ -624,9 +618,17 @@ class AttitudeFilter:
         consider covariance ``_P_true`` (their prior, propagated and updated alongside P)
         as the filter's covariance from then on. Only aiding observes them, and an
         unaided filter keeps exactly its attitude-and-bias estimates."""
-        if not self._scale_active and self._P_true is not None:
-            self._scale_active = True
+        if self._P_true is not None:
             self.P, self._P_true = self._P_true, None
+
+    def _map_covariances(self, step):
+        """P ← step(P), and the same for the consider covariance while it is kept
+        (see :meth:`initialize`); both symmetrised."""
+        p = step(self.P)
+        self.P = 0.5 * (p + p.T)
+        if self._P_true is not None:
+            p = step(self._P_true)
+            self._P_true = 0.5 * (p + p.T)
 
     def _update(self, h, innovation, variance, estimate_scale=True):
         """Kalman update with H (m, N_STATES), innovation (m,) and R: diagonal (m,) or full
@@ -661,11 +663,8 @@ class AttitudeFilter:
         self._a_ref = list(self._cum_a)
         self._bias_corr = (np.array(self._bias_corr) + dx[3:6]).tolist()
         ikh = np.eye(N_STATES) - gain @ h
-        for name in ('P', '_P_true'):
-            current = getattr(self, name)
-            if current is not None:
-                p = ikh @ current @ ikh.T + gain @ r @ gain.T
-                setattr(self, name, 0.5 * (p + p.T))
+        noise = gain @ r @ gain.T
+        self._map_covariances(lambda p: ikh @ p @ ikh.T + noise)
 
     # ------------------------------------------------------------------ outputs
     def corrected_rate(self, gyro_rps):
