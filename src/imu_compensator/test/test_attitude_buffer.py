@@ -86,3 +86,27 @@ def test_covariance_is_interpolated_linearly():
     np.testing.assert_allclose(buf.covariance_at(T0 + 0.0025), np.eye(3) * 1.5e-6, rtol=1e-4)
     assert buf.covariance_at(T0 + 0.02) is None
     assert buf.rpy_at(T0) == pytest.approx([0.05, -0.02, 0.4], abs=1e-12)
+
+
+@pytest.mark.parametrize('extrapolation_s', [0.0, 0.01])
+def test_at_is_at_many_to_the_bit(extrapolation_s):
+    """The one-instant path gives at_many's row exactly: samples, between them, across a
+    gap, before the oldest, past the newest (with and without extrapolation), NaN."""
+    rng = np.random.default_rng(1)
+    buf = AttitudeBuffer(horizon_s=2.0, max_gap_s=0.05, max_extrapolation_s=extrapolation_s)
+    t = 0.0
+    for i in range(900):
+        t += 0.0025 if i != 400 else 0.2
+        buf.push(t, rng.normal(size=4) * 0.01 + [0.0, 0.0, 0.0, 1.0])
+    kept = buf._t[buf._start:buf._end]
+    times = np.concatenate([rng.uniform(buf.oldest_s - 0.1, buf.newest_s + 0.05, 2000),
+                            kept[::7], [np.nan, buf.oldest_s, buf.newest_s]])
+    known = 0
+    for t_s, row in zip(times, buf.at_many(times)):
+        q = buf.at(t_s)
+        if np.isnan(row[0]):
+            assert q is None, t_s
+        else:
+            known += 1
+            assert np.array_equal(q, row), t_s
+    assert 0 < known < times.size

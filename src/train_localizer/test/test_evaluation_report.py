@@ -113,6 +113,28 @@ def test_write_report_files(tmp_path):
     assert 'after 3 s of simulated time' in text
 
 
+def test_latency_runs_are_logged_and_tabled(tmp_path):
+    """Each latency replay run appends its figures; the report tables every one."""
+    assert report.latency_runs_table(tmp_path) == ('', [])
+    for p99, after in ((58.1, 28.7 * 60), (36.0, 0.0)):
+        figures = {'exposure_to_pose': {'count': 259, 'median_ms': 29.0, 'p99_ms': p99,
+                                        'max_ms': p99 + 3.0},
+                   'decoder': {'processing_median_ms': 4.2},
+                   'spot_locator': {'processing_median_ms': None}}
+        report.append_latency_run(tmp_path, 'run_evaluation --latency', figures, after)
+    table, runs = report.latency_runs_table(tmp_path)
+    assert [r['p99_ms'] for r in runs] == [58.1, 36.0]
+    assert [r['after_min'] for r in runs] == [28.7, 0.0]
+    assert table.count('\n') == 3                       # header, rule, two runs
+    assert '| 259 | 29.00 / 58.10 / 61.10 | 4.20 / – / – |' in table
+    replay = [{'bag': 'bags/x', 'poses': 10, 'first_pose_s': 0.2, 'latency_ms': {},
+               'every_pose': {'max_m': 0.01, 'mean_m': 0.005, 'p95_m': 0.009},
+               'identification': {'first_confirmation_m': {}, 'wrong_uids': 0, 'frames': []},
+               'health': {'degraded': False, 'camera_lag_max_s': 0.0}}]
+    text = report.write_report([], [], tmp_path, replays=replay)
+    assert 'Every latency replay run into this output folder' in text and table in text
+
+
 def test_scenario_lists_cover_the_protocols():
     static = scenarios.static_scenarios()
     assert len(static) == 200

@@ -194,6 +194,7 @@ def main(argv=None):
                                           spawn=args.spawn, progress=progress,
                                           rescore=args.rescore, retries=args.retries)
         latency_results = []
+        protocols_s = time.monotonic() - started
         if args.latency:
             # alone on the machine, at real time: no parallel lane, no slower rerun, a
             # fresh lane each (a lane slows down after a run in which a node fell behind)
@@ -203,6 +204,9 @@ def main(argv=None):
                     {group: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
                     rescore=args.rescore, retries=0)[group]
             total += len(latency_results)
+            if latency_results and not args.rescore:
+                report.append_latency_run(out, command, report.latency_table(latency_results)[1],
+                                          protocols_s if results else 0.0)
     except KeyboardInterrupt:
         print('\ninterrupted: the running scenarios were stopped', file=sys.stderr)
         sys.stderr.flush()

@@ -6,6 +6,7 @@ typed in from a measurement: every number of ours comes from the results passed 
 import json
 import math
 import pathlib
+import time
 
 import numpy as np
 
@@ -292,6 +293,44 @@ def latency_table(results):
     return '\n'.join(rows) + f'\n\nLatency over {note}.', figures
 
 
+LATENCY_LOG = 'latency_runs.jsonl'
+
+
+def append_latency_run(out_dir, command, figures, after_s):
+    """Append one latency-replay run's end-to-end and processing figures (the
+    ``figures`` of :func:`latency_table`) to ``out_dir/latency_runs.jsonl``; ``after_s``:
+    wall seconds the same command had run the graph before the replays (the protocols)."""
+    e2e = figures.get('exposure_to_pose', {})
+    entry = {'finished': time.strftime('%Y-%m-%d %H:%M'), 'command': command,
+             'after_min': round(after_s / 60.0, 1), 'samples': e2e.get('count', 0),
+             'median_ms': e2e.get('median_ms'), 'p99_ms': e2e.get('p99_ms'),
+             'max_ms': e2e.get('max_ms')}
+    for key in ('decoder', 'spot_locator', 'localizer'):
+        entry[f'{key}_processing_ms'] = figures.get(key, {}).get('processing_median_ms')
+    with open(pathlib.Path(out_dir) / LATENCY_LOG, 'a', encoding='utf-8') as log:
+        log.write(json.dumps(entry) + '\n')
+
+
+def latency_runs_table(out_dir):
+    """Every latency-replay run logged in ``out_dir`` (Markdown, '' if none), oldest
+    first, and their entries: the spread of one machine's moments on the same code."""
+    path = pathlib.Path(out_dir) / LATENCY_LOG
+    if not path.exists():
+        return '', []
+    runs = [json.loads(line) for line in path.read_text(encoding='utf-8').splitlines()
+            if line.strip()]
+    rows = ['| finished | command | after the protocols (min) | samples | end to end median '
+            '/ p99 / max (ms) | processing median: decoder / spot locator / localizer (ms) |',
+            '|---|---|---|---|---|---|']
+    for r in runs:
+        rows.append(f'| {r["finished"]} | `{r["command"]}` | {r["after_min"]:.1f} | '
+                    f'{r["samples"]} | {_fmt(r["median_ms"])} / {_fmt(r["p99_ms"])} / '
+                    f'{_fmt(r["max_ms"])} | {_fmt(r["decoder_processing_ms"])} / '
+                    f'{_fmt(r["spot_locator_processing_ms"])} / '
+                    f'{_fmt(r["localizer_processing_ms"])} |')
+    return '\n'.join(rows), runs
+
+
 def health_summary(results):
     """How the runs went: reruns, real-time factors, runs still degraded."""
     flagged = [r for r in results if r.get('health', {}).get('degraded')]
@@ -456,6 +495,11 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
         table, figures['latency_replay'] = latency_table(replays)
         parts += ['', '### Latency, sensor bags replayed through the processing nodes', '',
                   table]
+        runs, figures['latency_runs'] = latency_runs_table(out_dir)
+        if runs:
+            parts += ['', 'Every latency replay run into this output folder (the table above '
+                      'is the last one; the same code and bags, the machine at different '
+                      'moments):', '', runs]
     if everything:
         text, figures['health'] = health_summary(everything)
         parts += ['', text]
