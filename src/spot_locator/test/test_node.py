@@ -119,7 +119,6 @@ def harness(ros_env):
 
     def make(**params):
         params.setdefault('diagnostics_period_s', 0.2)
-        params.setdefault('queue_depth', 10)
         h = Harness(ctx, **params)
         made.append(h)
         return h

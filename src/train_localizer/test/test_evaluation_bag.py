@@ -87,7 +87,7 @@ def test_graph_health_processing_and_heading_series(tmp_path, run_bag):
                          (0.2, _diag(epoch + 0.2, 'stereo_camera_node: renderer',
                                      {'lag_behind_realtime_s': '0.000'})),
                          (0.3, _diag(epoch + 0.3, 'spot_locator_node: spots',
-                                     {'dropped': '0', 'processing_ms_median': '3.5',
+                                     {'unpaired': '0', 'processing_ms_median': '3.5',
                                       'processing_ms_max': '12.0'})),
                          (0.4, _diag(epoch + 0.4, 'vlc_decoder: lamp identification',
                                      {'decode_ms_median': 'nan', 'decode_ms_max': 'nan'})))]
@@ -146,5 +146,5 @@ def test_heading_settling_time():
 def test_severity_of_a_degraded_run():
     assert not bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'compensator_gaps': 1})
     assert bag_eval.severely_degraded({'camera_lag_max_s': 0.3})
-    assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'spot_frames_dropped': 6})
+    assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'spot_skipped': 6})
     assert bag_eval.severely_degraded({'camera_lag_max_s': 0.0, 'localizer_records_too_old': 9})

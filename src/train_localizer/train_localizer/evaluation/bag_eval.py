@@ -223,7 +223,9 @@ def graph_health(run):
     lag = _diag_values(run, 'stereo_camera_node', 'lag_behind_realtime_s')
     health = {
         'camera_lag_max_s': max(lag) if lag else 0.0,
-        'spot_frames_dropped': last('spot_locator_node', 'dropped'),
+        # images the spot locator could not pair or use (it processes every pair)
+        'spot_skipped': sum(last('spot_locator_node', k) for k in (
+            'bad_image', 'size_mismatch', 'unpaired', 'out_of_order')),
         'imu_samples_skipped': last('adis16488_node', 'samples_skipped'),
         'compensator_gaps': last('imu_compensator_node', 'gaps'),
         'compensator_dropped': last('imu_compensator_node', 'samples_dropped'),
@@ -242,7 +244,7 @@ def severely_degraded(health):
     """A node fell far behind (not one lost sample): camera lag > 0.2 s, or more than
     five frames dropped or skipped, or more than five IMU gaps."""
     return bool(health.get('camera_lag_max_s', 0.0) > 0.2 or any(
-        health.get(k, 0) > 5 for k in ('spot_frames_dropped', 'decoder_skipped',
+        health.get(k, 0) > 5 for k in ('spot_skipped', 'decoder_skipped',
                                        'compensator_gaps', 'compensator_dropped',
                                        'imu_samples_skipped', 'localizer_records_too_old')))
 
