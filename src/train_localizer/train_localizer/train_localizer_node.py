@@ -457,24 +457,28 @@ class TrainLocalizerNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, report):
+        # the poses first: they are what the train waits for; the log lines and the
+        # compensator's attitude aids follow
+        map_frame = self.params['map_frame_id']
+        if report.poses:
+            base_frame = self.params['base_frame_id']
+            now_ns = self.get_clock().now().nanoseconds
+            for est in report.poses:
+                ps, pwc, odom = conversions.pose_messages(est, map_frame, base_frame)
+                self.pub_pose.publish(ps)
+                self.pub_pose_cov.publish(pwc)
+                self.pub_odom.publish(odom)
+                self._published += 1
+                self._last_pose = est
+            self._record_latency(report, now_ns)
         for event in report.events:
             self._log_event(event)
-        map_frame = self.params['map_frame_id']
         for aid in report.attitude_aids:
             self.pub_aid.publish(conversions.attitude_aid_message(aid, map_frame))
-        if not report.poses:
-            return
-        base_frame = self.params['base_frame_id']
-        now_ns = self.get_clock().now().nanoseconds
+
+    def _record_latency(self, report, now_ns):
         used = [f.measurement_ns for f in report.fixes if f.status in ('accepted', 'initialised',
                                                                        'reinitialised')]
-        for est in report.poses:
-            ps, pwc, odom = conversions.pose_messages(est, map_frame, base_frame)
-            self.pub_pose.publish(ps)
-            self.pub_pose_cov.publish(pwc)
-            self.pub_odom.publish(odom)
-            self._published += 1
-            self._last_pose = est
         for t in used:
             latency_ms = (now_ns - t) * 1e-6
             # Only meaningful when the node clock and the sensor stamps share a time base
