@@ -10,8 +10,9 @@ set -eo pipefail
 cd "$VLC_WS"
 out="${OUT:-out/eval}"
 rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
-# The run log lists the commands that recorded the bags: this evaluation re-records them.
-rm -f "$out/runs.jsonl"
+# The run log lists the commands that recorded the bags: this evaluation re-records them;
+# the latency log lists the latency replays from this evaluation on (re-runs append).
+rm -f "$out/runs.jsonl" "$out/latency_runs.jsonl"
 ros2run train_localizer run_evaluation --protocol full --latency --out "$out"
 ros2run train_localizer run_evaluation --protocol companions --ablations \
     --ablation-trials 1 --ablation-runs 1 --out "$out"
