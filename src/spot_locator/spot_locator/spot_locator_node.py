@@ -24,9 +24,9 @@ Publishes:
 One thread: the image callback that completes a stereo pair processes it at once, as
 the decoder does (a worker thread fed from a queue cost 1.2 ms median, 2.7 ms p99,
 between the pair's arrival and the start of its processing: the executor's own Python
-runs first; docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty or truncated image,
-left/right size mismatch, unpaired or out-of-order stamps) gives a throttled warning and
-is skipped.
+runs first; docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty or
+truncated image, left/right size mismatch, unpaired or out-of-order stamps) gives a
+throttled warning and is skipped.
 
 State: only the stereo pairing (images waiting for their partner, the newest paired
 stamp) and the latest odometry speed (aged by receipt time); the locator itself keeps
