@@ -386,6 +386,7 @@ class SpotLocatorNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
 
+
 def main(args=None):
     # one core: the stereo pair is processed in a single thread by design
     cv2.setNumThreads(1)
