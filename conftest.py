@@ -28,7 +28,7 @@ FASTDDS_PROFILE = WS / 'config' / 'fastdds_localhost_bigshm.xml'
 
 def _pick_domain_id():
     # Unique per test process and per call, within 1..119: the evaluation's lanes use
-    # 120..232 (train_localizer.evaluation.runner), so a test run never shares a domain
+    # 120..232 (vlc_evaluation.runner), so a test run never shares a domain
     # with an evaluation running beside it.
     _pick_domain_id.n = getattr(_pick_domain_id, 'n', 0) + 1
     return 1 + (os.getpid() * 7 + _pick_domain_id.n * 13) % 119

@@ -13,10 +13,10 @@ rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
 # The run log lists the commands that recorded the bags: this evaluation re-records them;
 # the latency log lists the latency replays from this evaluation on (re-runs append).
 rm -f "$out/runs.jsonl" "$out/latency_runs.jsonl"
-ros2run train_localizer run_evaluation --protocol full --latency --out "$out"
-ros2run train_localizer run_evaluation --protocol companions --ablations \
+ros2run vlc_evaluation run_evaluation --protocol full --latency --out "$out"
+ros2run vlc_evaluation run_evaluation --protocol companions --ablations \
     --ablation-trials 1 --ablation-runs 1 --out "$out"
-ros2run train_localizer run_evaluation --protocol full --latency --ablations \
+ros2run vlc_evaluation run_evaluation --protocol full --latency --ablations \
     --ablation-trials 1 --ablation-runs 1 --companions --outage --forged --rescore \
     --out "$out" --readme README.md \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md

@@ -36,7 +36,7 @@ def test_system_runs_21_15_kchips_with_25_us_exposure():
 
 
 def test_demo_pictures_show_the_graphs_camera_timing():
-    from vlc_stereo_camera.demo_images import DEMO_CONFIG
+    from vlc_evaluation.demo_images import DEMO_CONFIG
     cam = _params(FILES['stereo_camera_node'])
     assert DEMO_CONFIG.chip_rate_hz == cam['chip_rate_hz']
     assert DEMO_CONFIG.exposure_s == cam['exposure_s']

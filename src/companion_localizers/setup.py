@@ -25,10 +25,7 @@ setup(
             'rssi_localizer_node = companion_localizers.rssi_localizer_node:main',
             'dead_reckoning_node = companion_localizers.dead_reckoning_node:main',
             'ins_beacon_node = companion_localizers.ins_beacon_node:main',
-            'companion_benchmark = companion_localizers.benchmark:main',
-            'companion_score = companion_localizers.scoring:main',
             'curvature_node = companion_localizers.curvature_node:main',
-            'curvature_benchmark = companion_localizers.curvature_benchmark:main',
         ],
     },
 )

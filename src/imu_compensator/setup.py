@@ -22,7 +22,6 @@ setup(
     entry_points={
         'console_scripts': [
             'imu_compensator_node = imu_compensator.imu_compensator_node:main',
-            'compensation_benchmark = imu_compensator.benchmark:main',
         ],
     },
 )

@@ -22,7 +22,6 @@ setup(
     entry_points={
         'console_scripts': [
             'spot_locator_node = spot_locator.spot_locator_node:main',
-            'spot_benchmark = spot_locator.benchmark:main',
         ],
     },
 )

@@ -12,7 +12,6 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*')),
-        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -23,11 +22,6 @@ setup(
     entry_points={
         'console_scripts': [
             'train_localizer_node = train_localizer.train_localizer_node:main',
-            'bag_recorder = train_localizer.bagtools.recorder_node:main',
-            'bag_player = train_localizer.bagtools.player_node:main',
-            'run_evaluation = train_localizer.evaluation.cli:main',
-            'localizer_benchmark = train_localizer.benchmark:main',
-            'localizer_replay = train_localizer.replay:main',
         ],
     },
 )

@@ -22,7 +22,6 @@ setup(
     entry_points={
         'console_scripts': [
             'vlc_decoder_node = vlc_decoder.vlc_decoder_node:main',
-            'decoder_benchmark = vlc_decoder.benchmark:main',
         ],
     },
 )

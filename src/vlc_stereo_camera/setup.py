@@ -24,8 +24,6 @@ setup(
             'stereo_camera_node = vlc_stereo_camera.stereo_camera_node:main',
             'adis16488_node = vlc_stereo_camera.adis16488_node:main',
             'photodiode_node = vlc_stereo_camera.photodiode_node:main',
-            'rig_benchmark = vlc_stereo_camera.benchmark:main',
-            'render_demo_images = vlc_stereo_camera.demo_images:main',
         ],
     },
 )

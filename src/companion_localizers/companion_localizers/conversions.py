@@ -14,9 +14,9 @@ import numpy as np
 
 from train_localizer.conversions import (imu_from_msg, intrinsics_from_camera_info,  # noqa: F401
                                          ns_to_stamp, stamp_to_ns)
-from vlc_stereo_camera.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
+from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 
-from .core.rssi import LampReading
+from companion_localizers.core.rssi import LampReading
 
 RSSI_FIELDS = ('uid', 'power_w')
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')

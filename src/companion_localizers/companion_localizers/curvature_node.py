@@ -52,13 +52,13 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rcl_interfaces.msg import ParameterType
 from sensor_msgs.msg import Imu
 
-from vlc_stereo_camera.core.alignment import NAMED_ALIGNMENTS, Alignment
-from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw, rpy_to_matrix
-from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import spin_until_shutdown
+from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
+from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import spin_until_shutdown
 
-from . import conversions
-from .core.curvature import (STATUS_NO_SIGNAL, STATUS_OK, STATUS_TOO_SHORT, CurvatureConfig,
+from companion_localizers import conversions
+from companion_localizers.core.curvature import (STATUS_NO_SIGNAL, STATUS_OK, STATUS_TOO_SHORT, CurvatureConfig,
                              CurvatureLocalizer)
 
 EXIT_INVALID_CONFIG = 2

@@ -14,11 +14,11 @@ Parameters: ``config/dead_reckoning_node.yaml``.
 import sys
 
 
-from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_common.parameters import descriptor as _desc
 
-from .node_main import run_node
-from .core.dead_reckoning import DeadReckoning, DeadReckoningConfig, ImageStillConfig
-from .frame_node import ImuFrameNode, common_config_kwargs
+from companion_localizers.node_main import run_node
+from companion_localizers.core.dead_reckoning import DeadReckoning, DeadReckoningConfig, ImageStillConfig
+from companion_localizers.frame_node import ImuFrameNode, common_config_kwargs
 
 
 

@@ -25,13 +25,13 @@ from train_localizer.core.fix import RigGeometry
 from train_localizer.core.join import FrameJoiner, JoinConfig
 from train_localizer.core.kalman import KalmanConfig
 from train_localizer.core.standstill import StandstillConfig
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.parameters import descriptor as _desc
 
-from . import conversions
-from .core.along_track import FilterSettings
-from .core.ranging import RangingConfig
+from companion_localizers import conversions
+from companion_localizers.core.along_track import FilterSettings
+from companion_localizers.core.ranging import RangingConfig
 
 _RIG = StereoRig()
 _DEG = math.pi / 180.0

@@ -15,12 +15,12 @@ logged (throttled). Parameters: ``config/ins_beacon_node.yaml``.
 import sys
 
 
-from vlc_stereo_camera.parameters import descriptor as _desc
+from vlc_common.parameters import descriptor as _desc
 
-from .node_main import run_node
-from .core.beacon_sequence import BeaconSequenceConfig
-from .core.ins_beacon import InsBeacon, InsBeaconConfig
-from .frame_node import WARN, ImuFrameNode, common_config_kwargs
+from companion_localizers.node_main import run_node
+from companion_localizers.core.beacon_sequence import BeaconSequenceConfig
+from companion_localizers.core.ins_beacon import InsBeacon, InsBeaconConfig
+from companion_localizers.frame_node import WARN, ImuFrameNode, common_config_kwargs
 
 
 

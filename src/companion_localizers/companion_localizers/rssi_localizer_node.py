@@ -40,15 +40,15 @@ from sensor_msgs.msg import Imu, PointCloud2
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from imu_compensator.core.rotations import quat_to_matrix
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.photodiode_node import declare_channel_parameters, photodiode_config
+from vlc_common.core.rotations import quat_to_matrix
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
 
-from .node_main import run_node
-from . import conversions
-from .core.attitude_prior import fuse_tilt
-from .core.rssi import SOLVE_MODES, RssiConfig, trilaterate
+from companion_localizers.node_main import run_node
+from companion_localizers import conversions
+from companion_localizers.core.attitude_prior import fuse_tilt
+from companion_localizers.core.rssi import SOLVE_MODES, RssiConfig, trilaterate
 
 NS_PER_S = 1_000_000_000
 #: Level values of diagnostic_msgs/DiagnosticStatus.

@@ -3,7 +3,7 @@ import pytest
 
 from companion_localizers.core.beacon_sequence import (BeaconSequenceChecker,
                                                        BeaconSequenceConfig, Verdict)
-from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+from vlc_common.core.lamp_map import straight_tunnel_map
 
 LAMPS = straight_tunnel_map()      # lamp_id k at chainage 10·k m, UID 0x1000 | k
 

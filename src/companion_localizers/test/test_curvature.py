@@ -1,37 +1,22 @@
 """Curvature-array correlation (companion method 4): core, scoring and bag reading.
 
 Synthetic inputs: the yaw rate κ(s(t))·v of a train on a known alignment plus seeded
-noise, bias and a vibration-like yaw oscillation; or the rig's own trajectory and
-ADIS16488 model (curvature_benchmark.simulate). Every test scores against the truth.
+noise, bias and a vibration-like yaw oscillation; every test scores against the truth. Runs on the rig's IMU model: vlc_evaluation's
+test_curvature_benchmark.py.
 """
 import math
 
 import numpy as np
 import pytest
 
-from companion_localizers import curvature_benchmark as bench
 from companion_localizers.core.curvature import (STATUS_AMBIGUOUS, STATUS_NO_SIGNAL,
                                                  STATUS_OK, STATUS_TOO_SHORT, CurvatureArray,
                                                  CurvatureConfig, CurvatureLocalizer,
                                                  CurvatureTemplate, chainage_sigma, match)
-from vlc_stereo_camera.core.alignment import Alignment
-from vlc_stereo_camera.core.trajectory import MotionProfile
+from vlc_common.core.alignment import Alignment
+from vlc_stereo_camera.core.upstream import yaw_rate_on_alignment
 
 DEMO = Alignment.named('curved_demo')
-
-
-def synthetic(alignment, start_m, distance_m, speed_mps, rate_hz=100.0, seed=0,
-              bias_rps=0.0, noise_rps=0.0, vibration_deg=0.0, vibration_hz=0.45):
-    """(t, yaw rate, true chainage) of a train at constant speed on ``alignment``."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(0.0, distance_m / speed_mps, 1.0 / rate_hz)
-    s = start_m + speed_mps * t
-    w = alignment.evaluate(s).curvature_1pm * speed_mps + bias_rps
-    w = w + rng.normal(0.0, noise_rps, t.size)
-    # Bounded heading oscillation: rate = d/dt [A sin(2π f t)].
-    w = w + math.radians(vibration_deg) * 2 * math.pi * vibration_hz * np.cos(
-        2 * math.pi * vibration_hz * t)
-    return t, w, s
 
 
 def run_array(cfg, t, w, v):
@@ -56,7 +41,7 @@ def test_template_is_the_alignment_curvature_at_one_metre():
 def test_array_recovers_the_curvature_per_metre():
     """Noise-free yaw rate κ·v at 20 m/s: κ_i equals the mean curvature of each metre."""
     cfg = CurvatureConfig()
-    t, w, s = synthetic(DEMO, 150.0, 700.0, 20.0, rate_hz=200.0)
+    t, w, s = yaw_rate_on_alignment(DEMO, 150.0, 700.0, 20.0, rate_hz=200.0)
     array = run_array(cfg, t, w, 20.0)
     window = array.window()
     assert array.distance_m == pytest.approx(s[-1] - s[0], abs=1e-6)
@@ -106,7 +91,7 @@ def test_match_finds_the_chainage_and_absorbs_the_speed_error(speed_error):
     ratio = 1/(1 + error)."""
     cfg = CurvatureConfig()
     v = 20.0
-    t, w, s = synthetic(DEMO, 100.0, 1000.0, v, seed=2, bias_rps=0.002, noise_rps=0.005,
+    t, w, s = yaw_rate_on_alignment(DEMO, 100.0, 1000.0, v, seed=2, bias_rps=0.002, noise_rps=0.005,
                         vibration_deg=5.0)
     array = run_array(cfg, t, w, v * (1.0 + speed_error))
     result = match(CurvatureTemplate(DEMO, cfg), array)
@@ -119,8 +104,8 @@ def test_match_finds_the_chainage_and_absorbs_the_speed_error(speed_error):
 
 def test_straight_track_is_refused_as_no_curvature_signal():
     cfg = CurvatureConfig()
-    t, w, _ = synthetic(DEMO, 560.0, 300.0, 20.0)           # inside the 300 m straight
-    t2, w2, _ = synthetic(Alignment.straight(), 0.0, 1200.0, 20.0, seed=3, bias_rps=0.003,
+    t, w, _ = yaw_rate_on_alignment(DEMO, 560.0, 300.0, 20.0)           # inside the 300 m straight
+    t2, w2, _ = yaw_rate_on_alignment(Alignment.straight(), 0.0, 1200.0, 20.0, seed=3, bias_rps=0.003,
                           noise_rps=0.005, vibration_deg=5.0)
     for alignment, (tt, ww) in ((Alignment.straight(), (t2, w2)), (DEMO, (t2, w2))):
         result = match(CurvatureTemplate(alignment, cfg), run_array(cfg, tt, ww, 20.0))
@@ -130,7 +115,7 @@ def test_straight_track_is_refused_as_no_curvature_signal():
 
 def test_short_array_is_too_short():
     cfg = CurvatureConfig()
-    t, w, _ = synthetic(DEMO, 150.0, 400.0, 20.0)     # 400 m − 2·3σ margins < 300 m
+    t, w, _ = yaw_rate_on_alignment(DEMO, 150.0, 400.0, 20.0)     # 400 m − 2·3σ margins < 300 m
     result = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, t, w, 20.0))
     assert result.status == STATUS_TOO_SHORT and math.isnan(result.chainage_m)
 
@@ -142,13 +127,13 @@ def test_two_identical_curves_are_ambiguous():
     twins = Alignment([('straight', 600.0)] + curve + [('straight', 700.0)] + curve
                       + [('straight', 600.0)], name='twins')
     cfg = CurvatureConfig()
-    t, w, s = synthetic(twins, 450.0, 850.0, 20.0, seed=4, noise_rps=0.002)
+    t, w, s = yaw_rate_on_alignment(twins, 450.0, 850.0, 20.0, seed=4, noise_rps=0.002)
     result = match(CurvatureTemplate(twins, cfg), run_array(cfg, t, w, 20.0))
     assert result.status == STATUS_AMBIGUOUS, result
     assert math.isnan(result.chainage_m) and result.confidence == 0.0
     # Both curves in a 1300 m window (625 … 1925 m): unique again.
     long_cfg = CurvatureConfig(window_m=1300.0)
-    t, w, s = synthetic(twins, 450.0, 1550.0, 20.0, seed=4, noise_rps=0.002)
+    t, w, s = yaw_rate_on_alignment(twins, 450.0, 1550.0, 20.0, seed=4, noise_rps=0.002)
     result = match(CurvatureTemplate(twins, long_cfg), run_array(long_cfg, t, w, 20.0))
     assert result.status == STATUS_OK and result.chainage_m == pytest.approx(s[-1], abs=3.0)
 
@@ -214,94 +199,16 @@ def test_localizer_pose_is_on_the_alignment():
 
 # --- the whole chain on the rig's models, scored --------------------------------------------
 
-def test_rig_imu_run_is_localised_within_metres():
-    """ADIS16488 model (bias, noise, scale) on the rig trajectory with its vibration, a
-    tachometer with +3 % scale error and 0.05 m/s noise, 80 km/h over 750 m of curves."""
-    profile = MotionProfile('constant', start_chainage_m=150.0, speed_mps=80 / 3.6)
-    inputs = bench.simulate(DEMO, profile, seed=2, imu_rate_hz=100.0,
-                            speed_scale_error=0.03, duration_s=750.0 / (80 / 3.6))
-    matches = bench.run(inputs, DEMO)
-    score = bench.score(matches, inputs)
-    assert score.matches == len(matches) >= 30
-    assert score.available >= 5
-    assert score.max_m < 5.0
-    assert score.ratio_median == pytest.approx(1 / 1.03, abs=0.01)
-    # Refusals only while the window still holds a single curve (acquisition).
-    assert set(score.statuses) <= {'ok', 'too_short', 'imprecise', 'ambiguous'}
 
-
-def test_chainage_sigma_covers_the_errors_and_grows_with_spread_and_short_windows():
+def test_chainage_sigma_grows_with_spread_and_short_windows():
     """The 1σ each accepted match carries (train_localizer's aid variance): floor for
-    a full window, larger for a short window or a spread; on the rig run every error is
-    within 3σ."""
+    a full window, larger for a short window or a spread; NaN for a refused match."""
     cfg = CurvatureConfig()
     assert chainage_sigma(0.0, cfg.window_m, cfg) == pytest.approx(cfg.chainage_sigma_floor_m)
     assert chainage_sigma(0.0, cfg.min_window_m, cfg) == pytest.approx(
         math.hypot(cfg.chainage_sigma_floor_m, cfg.short_window_sigma_m))
     assert chainage_sigma(3.0, cfg.window_m, cfg) == pytest.approx(
         math.hypot(cfg.chainage_sigma_floor_m, 3.0))
-    profile = MotionProfile('constant', start_chainage_m=150.0, speed_mps=80 / 3.6)
-    inputs = bench.simulate(DEMO, profile, seed=3, imu_rate_hz=100.0,
-                            speed_scale_error=0.03, duration_s=900.0 / (80 / 3.6))
-    ok = [m for m in bench.run(inputs, DEMO) if m.match.ok]
-    assert len(ok) >= 10
-    z = [(m.match.chainage_m - np.interp(m.t_s, inputs.truth_t, inputs.truth_chainage))
-         / m.match.chainage_sigma_m for m in ok]
-    assert np.max(np.abs(z)) <= 3.0
-    refused = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, *synthetic(DEMO, 150.0, 400.0,
+    refused = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, *yaw_rate_on_alignment(DEMO, 150.0, 400.0,
                                                                             20.0)[:2], 20.0))
     assert math.isnan(refused.chainage_sigma_m)
-
-
-def test_bag_is_read_and_scored(tmp_path):
-    """A rosbag2 bag with /imu/data_raw, /ground_truth/odometry and /ground_truth/pose."""
-    from train_localizer.bagtools.bagio import write_bag
-    from train_localizer.bagtools.typesupport import jazzy_typestore
-
-    types = jazzy_typestore().types
-    t, w, s = synthetic(DEMO, 150.0, 800.0, 20.0, rate_hz=50.0, seed=5, noise_rps=0.002)
-    epoch = 1704067200.0
-
-    def header(ts):
-        sec = int(math.floor(ts))
-        return types['std_msgs/msg/Header'](stamp=types['builtin_interfaces/msg/Time'](
-            sec=sec, nanosec=int(round((ts - sec) * 1e9)) % 1_000_000_000), frame_id='map')
-
-    vec = types['geometry_msgs/msg/Vector3']
-    msgs = []
-    xyz = DEMO.to_map(s)
-    for k in range(len(t)):
-        ts = epoch + t[k]
-        stamp_ns = int(round(ts * 1e9))
-        imu = types['sensor_msgs/msg/Imu'](
-            header=header(ts), orientation=types['geometry_msgs/msg/Quaternion'](
-                x=0.0, y=0.0, z=0.0, w=1.0),
-            orientation_covariance=np.zeros(9), angular_velocity=vec(x=0.0, y=0.0, z=w[k]),
-            angular_velocity_covariance=np.zeros(9), linear_acceleration=vec(x=0.0, y=0.0, z=9.8),
-            linear_acceleration_covariance=np.zeros(9))
-        msgs.append(('/imu/data_raw', 'sensor_msgs/msg/Imu', stamp_ns, imu))
-        if k % 5 == 0:
-            pose = types['geometry_msgs/msg/Pose'](
-                position=types['geometry_msgs/msg/Point'](x=xyz[k, 0], y=xyz[k, 1], z=0.0),
-                orientation=types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0))
-            msgs.append(('/ground_truth/pose', 'geometry_msgs/msg/PoseStamped', stamp_ns,
-                         types['geometry_msgs/msg/PoseStamped'](header=header(ts), pose=pose)))
-            odom = types['nav_msgs/msg/Odometry'](
-                header=header(ts), child_frame_id='base_link',
-                pose=types['geometry_msgs/msg/PoseWithCovariance'](pose=pose,
-                                                                   covariance=np.zeros(36)),
-                twist=types['geometry_msgs/msg/TwistWithCovariance'](
-                    twist=types['geometry_msgs/msg/Twist'](linear=vec(x=20.0, y=0.0, z=0.0),
-                                                           angular=vec(x=0.0, y=0.0, z=0.0)),
-                    covariance=np.zeros(36)))
-            msgs.append(('/ground_truth/odometry', 'nav_msgs/msg/Odometry', stamp_ns, odom))
-    write_bag(tmp_path / 'run', msgs)
-    inputs = bench.load_bag(tmp_path / 'run', DEMO)
-    assert inputs.imu_t.size == len(t) and inputs.speed_t.size == inputs.truth_t.size
-    np.testing.assert_allclose(inputs.truth_chainage, s[::5], atol=1e-6)
-    np.testing.assert_allclose(inputs.speed, 20.0)
-    score = bench.score(bench.run(inputs, DEMO), inputs)
-    assert score.available >= 3 and score.max_m < 3.0
-    # Without the odometry topic the speed comes from the truth poses.
-    no_odom = bench.load_bag(tmp_path / 'run', DEMO, speed_topic='/absent')
-    np.testing.assert_allclose(no_odom.speed, 20.0, rtol=1e-5)   # float stamps near 1.7e9 s

@@ -18,8 +18,8 @@ import yaml
 
 from companion_localizers.curvature_node import (_CORE_DEFAULTS, CORE_PARAMETERS,
                                                  NODE_PARAMETERS, CurvatureNode)
-from vlc_stereo_camera.core.alignment import Alignment
-from vlc_stereo_camera.core.geometry import quat_xyzw_to_matrix
+from vlc_common.core.alignment import Alignment
+from vlc_common.core.rotations import quat_to_matrix
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'curvature_node.yaml'
 EPOCH = 1704067200.0
@@ -99,7 +99,7 @@ def test_node_publishes_the_matched_chainage_on_the_alignment(make_node):
         assert chainage[0] == pytest.approx(truth_s, abs=3.0)
         assert lateral[0] == pytest.approx(0.0, abs=1e-6) and p.z == 0.0
         q = pose.pose.orientation
-        R = quat_xyzw_to_matrix([q.x, q.y, q.z, q.w])
+        R = quat_to_matrix([q.x, q.y, q.z, q.w])
         assert math.atan2(R[1, 0], R[0, 0]) == pytest.approx(
             DEMO.evaluate(chainage[0]).heading_rad[0], abs=1e-6)
     node._publish_diagnostics()

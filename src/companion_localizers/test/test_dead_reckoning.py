@@ -4,8 +4,8 @@ import pytest
 
 from companion_localizers.core.dead_reckoning import (DeadReckoning, DeadReckoningConfig,
                                                       ImageStillConfig, ImageStillness)
-from companion_localizers.core.simulated_run import LAMPS, run_core
-from train_localizer.core.observation import ImuSample
+from vlc_stereo_camera.core.upstream import LAMPS, run_core
+from vlc_common.core.observation import ImuSample
 
 
 def test_acceleration_input_is_the_20_sample_moving_average():

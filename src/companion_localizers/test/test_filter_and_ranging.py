@@ -8,12 +8,12 @@ from companion_localizers.core.along_track import (H_CHAINAGE, H_SPEED, AlongTra
                                                    FilterSettings)
 from companion_localizers.core.attitude_prior import fuse_tilt
 from companion_localizers.core.ranging import RangingConfig, range_to_lamp
-from imu_compensator.core.rotations import quat_from_rpy, quat_to_rpy
+from vlc_common.core.rotations import quat_from_rpy, quat_to_rpy
 from train_localizer.core.fix import RigGeometry
-from train_localizer.core.observation import LampObservation
-from train_localizer.core.simulation import SensorErrors, SensorSimulator
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+from vlc_common.core.observation import LampObservation
+from vlc_stereo_camera.core.upstream import SensorErrors, SensorSimulator
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import straight_tunnel_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
 MS = 1_000_000

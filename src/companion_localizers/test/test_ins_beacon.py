@@ -2,8 +2,8 @@
 import pytest
 
 from companion_localizers.core.ins_beacon import InsBeacon, InsBeaconConfig
-from companion_localizers.core.simulated_run import LAMPS, run_core
-from train_localizer.core.simulation import SensorErrors
+from vlc_stereo_camera.core.upstream import LAMPS, run_core
+from vlc_stereo_camera.core.upstream import SensorErrors
 
 
 @pytest.mark.parametrize('speed_kmh', [20.0, 100.0])

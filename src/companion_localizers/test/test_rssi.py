@@ -7,9 +7,10 @@ import pytest
 from companion_localizers.core.rssi import (LampReading, RssiConfig, collinear,
                                             distances_from_power, model_power, trilaterate,
                                             window_factor)
-from vlc_stereo_camera.core.geometry import rot_z, rpy_to_matrix
-from vlc_stereo_camera.core.lamp_map import Lamp, LampMap, straight_tunnel_map
-from vlc_stereo_camera.core.photodiode import Photodiode, PhotodiodeConfig, photodiode_pose
+from vlc_common.core.rotations import rot_z, rpy_to_matrix
+from vlc_common.core.lamp_map import Lamp, LampMap, straight_tunnel_map
+from vlc_common.core.optical_channel import PhotodiodeConfig, photodiode_pose
+from vlc_stereo_camera.core.photodiode import Photodiode
 from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
                                                VibrationConfig)
 

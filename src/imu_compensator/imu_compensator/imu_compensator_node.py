@@ -51,12 +51,12 @@ from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
 from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorConfig,
                                               SampleStatus)
-from imu_compensator.core.rotations import quat_from_rpy, quat_to_matrix
+from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
-from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.polled import PolledSubscription
-from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
-from vlc_stereo_camera.throttled_log import ThrottledWarnings
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import PolledSubscription
+from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_common.throttled_log import ThrottledWarnings
 
 DEG = math.pi / 180.0
 #: Exit code of an invalid configuration (as the rig's nodes).
@@ -268,7 +268,7 @@ class ImuCompensatorNode(Node):
         self._pub = self.create_publisher(Imu, 'imu/data', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         if cfg.poll_period_s > 0.0:
-            # 400 Hz: taken in batches, one executor wake-up per batch (vlc_stereo_camera.polled)
+            # 400 Hz: taken in batches, one executor wake-up per batch (vlc_common.polled)
             self._raw = PolledSubscription(self, Imu, 'imu/data_raw', IMU_QOS)
             self.create_timer(cfg.poll_period_s, self._on_poll,
                               clock=Clock(clock_type=ClockType.STEADY_TIME))

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from imu_compensator.core.rotations import quat_from_rotvec, quat_from_rpy, quat_multiply
+from vlc_common.core.rotations import quat_from_rotvec, quat_from_rpy, quat_multiply
 
 T0 = 1704067200.0
 OMEGA = np.array([0.3, -0.7, 1.9])   # rad/s, body frame

@@ -110,7 +110,7 @@ def test_heading_aiding_at_a_past_stamp_corrects_the_present():
 
 
 def test_attitude_aiding_corrects_what_it_sees_and_keeps_what_it_cannot():
-    from imu_compensator.core.rotations import quat_from_rotvec, quat_multiply
+    from vlc_common.core.rotations import quat_from_rotvec, quat_multiply
     rng = np.random.default_rng(5)
     comp = AttitudeCompensator()
     still(comp, T0, 800, rng)

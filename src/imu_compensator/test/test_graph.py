@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
-from imu_compensator.core.rotations import quat_to_rpy
+from vlc_common.core.rotations import quat_to_rpy
 
 INSTALL_LIB = pathlib.Path(__file__).resolve().parents[3] / 'install' / 'lib'
 EPOCH_NS = 1704067200 * 10 ** 9

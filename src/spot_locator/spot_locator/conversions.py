@@ -1,54 +1,15 @@
 """Messages ↔ arrays for the spot locator (the only module that knows both).
 
-``spots/pairs`` layout (sensor_msgs/PointCloud2, one point per matched lamp spot pair,
-header = the stereo images' header, little endian, ``height`` 1, ``point_step`` 112):
-
-=====================================  =======  ======  =====================================
-field                                  type     offset  meaning
-=====================================  =======  ======  =====================================
-``u_left``, ``v_left``                 float64  0, 8    projected lamp-disc centre, left, px
-``u_right``, ``v_right``               float64  16, 24  same in the right image, px
-``disparity``                          float64  32      u_left − u_right, px (> 0)
-``stamp_offset_s``                     float64  40      measurement instant − header stamp, s:
-                                                        exposure mid-time of the spot's
-                                                        centre row
-``sigma_u_left``, ``sigma_v_left``     float32  48, 52  1σ of u_left, v_left, px
-``sigma_u_right``, ``sigma_v_right``   float32  56, 60  1σ of u_right, v_right, px
-``sigma_disparity``                    float32  64      1σ of the disparity, px
-``circularity_left``,                  float32  68, 72  α = 4πS/L² (paper eq. 10) of each spot
-``circularity_right``
-``ecc_du_left``, ``ecc_dv_left``       float32  76, 80  eccentricity offset removed, left, px
-``ecc_du_right``, ``ecc_dv_right``     float32  84, 88  same, right, px
-``blur_px``                            float32  92      predicted exposure blur length, px
-``row_min``, ``row_max``               uint32   96, 100 first/last image row the left spot
-                                                        covers (lit rows after closing)
-``flags``                              uint32   104     bits 0–1 method (0 centroid,
-                                                        1 ellipse, 2 fused, 3 chord); 2 Wiener
-                                                        applied; 3 eccentricity removed with
-                                                        the nominal normal; 4 … with the
-                                                        measured normal; 5 centre row from
-                                                        the chord widths; 6 rolling-shutter
-                                                        model applied; 7 a spot cut by the
-                                                        top or bottom image edge
-=====================================  =======  ======  =====================================
+``spots/pairs`` layout: :data:`vlc_common.core.records.PAIR_DTYPE`.
 """
 
 import cv2
 import numpy as np
-from vlc_stereo_camera.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
+from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
 
-from .core.locator import StereoGeometry
+from spot_locator.core.locator import StereoGeometry
+from vlc_common.core.records import PAIR_DTYPE  # noqa: F401 (re-exported)
 
-PAIR_DTYPE = np.dtype({
-    'names': ['u_left', 'v_left', 'u_right', 'v_right', 'disparity', 'stamp_offset_s',
-              'sigma_u_left', 'sigma_v_left', 'sigma_u_right', 'sigma_v_right',
-              'sigma_disparity', 'circularity_left', 'circularity_right', 'ecc_du_left',
-              'ecc_dv_left', 'ecc_du_right', 'ecc_dv_right', 'blur_px', 'row_min',
-              'row_max', 'flags'],
-    'formats': ['<f8'] * 6 + ['<f4'] * 12 + ['<u4'] * 3,
-    'offsets': [0, 8, 16, 24, 32, 40] + [48 + 4 * i for i in range(12)] + [96, 100, 104],
-    'itemsize': 112,
-})
 
 
 _CHANNELS = {'mono8': (np.uint8, 1), 'mono16': ('<u2', 1), '8UC1': (np.uint8, 1),

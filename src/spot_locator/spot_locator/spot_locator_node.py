@@ -51,15 +51,15 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from vlc_stereo_camera.core.camera import mount_rotation, StereoRig
+from vlc_common.core.camera import mount_rotation, StereoRig
 
-from . import conversions
-from .core.centres import ChordConfig
-from .core.detection import DetectConfig
-from .core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
-from .core.matching import MatchConfig
-from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.process import (freeze_start_up_objects, keep_large_buffers,
+from spot_locator import conversions
+from spot_locator.core.centres import ChordConfig
+from spot_locator.core.detection import DetectConfig
+from spot_locator.core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
+from spot_locator.core.matching import MatchConfig
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import (freeze_start_up_objects, keep_large_buffers,
                                        spin_until_shutdown)
 
 EXIT_INVALID_CONFIG = 2

@@ -155,7 +155,7 @@ def _cut_near_lamp(rng, ramp_dn_per_px=(-0.004, 0.008)):
     below its centre (its top tip is in, its bottom tip 28 rows off the image).
 
     Returns the image and the imaged ellipse's centre (crop pixels)."""
-    from vlc_stereo_camera.core.camera import StereoRig
+    from vlc_common.core.camera import StereoRig
     rig = StereoRig()
     normal = rig.R_base_cam.T @ np.array([0.0, -1.0, 0.0])
     centre = rig.to_camera(np.array([[0.5, 2.5, 1.4]]), np.zeros(3), np.eye(3), 0)[0]

@@ -5,7 +5,7 @@ import pytest
 from spot_locator.core import locator as loc_mod
 from spot_locator.core import synth
 from spot_locator.core.locator import LocatorConfig, SpotLocator, StereoGeometry
-from vlc_stereo_camera.core.camera import StereoRig
+from vlc_common.core.camera import StereoRig
 
 RIG = StereoRig()
 K = RIG.intrinsics.K

@@ -15,7 +15,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from spot_locator import conversions
 from spot_locator.core import synth
 from spot_locator.spot_locator_node import SpotLocatorNode
-from vlc_stereo_camera.core.camera import StereoRig
+from vlc_common.core.camera import StereoRig
 
 pytestmark = pytest.mark.ros
 

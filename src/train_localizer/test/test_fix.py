@@ -4,14 +4,14 @@ import math
 import numpy as np
 import pytest
 
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.geometry import rpy_to_matrix
-from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.rotations import rpy_to_matrix
+from vlc_common.core.lamp_map import straight_tunnel_map
 
 from train_localizer.core.fix import (FixConfig, RigGeometry, constrained_fix, exp_so3,
                                       measurement_time_ns, paper_fix, triangulate,
                                       vision_attitude)
-from train_localizer.core.observation import LampObservation
+from vlc_common.core.observation import LampObservation
 
 DEG = math.pi / 180.0
 RIG = StereoRig()

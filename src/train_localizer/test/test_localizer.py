@@ -4,20 +4,20 @@ import copy
 import numpy as np
 import pytest
 
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import straight_tunnel_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
-from imu_compensator.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
+from vlc_common.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
                                             quat_to_rotvec)
 
 from train_localizer.core.fix import RigGeometry
 from train_localizer.core.integrity import IntegrityState, Level, select_association
 from train_localizer.core.localizer import Localizer, LocalizerConfig
-from train_localizer.core.observation import ImuSample, LampObservation
-from train_localizer.core.simulation import (EPOCH_NS, SensorErrors, SensorSimulator,
+from vlc_common.core.observation import ImuSample, LampObservation
+from vlc_stereo_camera.core.upstream import (EPOCH_NS, SensorErrors, SensorSimulator,
                                              event_stream, from_stamp_ns)
-from train_localizer.core.simulation import feed_localizer as feed
+from vlc_stereo_camera.core.upstream import feed_localizer as feed
 
 RIG = StereoRig()
 LAMPS = straight_tunnel_map()
@@ -410,8 +410,8 @@ def test_curved_alignment_through_transition_and_curve(speed_kmh):
     """curved_demo from its first straight through the clothoid into the R = 400 m curve:
     the fix puts base_link on the alignment, the filter runs along its chainage and the
     pose lies on the curve, in map x and y."""
-    from vlc_stereo_camera.core.alignment import Alignment
-    from vlc_stereo_camera.core.lamp_map import alignment_lamp_map
+    from vlc_common.core.alignment import Alignment
+    from vlc_common.core.lamp_map import alignment_lamp_map
 
     from train_localizer.core.track import Track
 

@@ -1,7 +1,7 @@
 """train_localizer_node in-process: simulated inputs over DDS, outputs and bad input.
 
-``spots/pairs`` and ``vlc/lamps`` messages are built with spot_locator's and
-vlc_decoder's own conversions, so the node is tested against their real field layouts.
+``spots/pairs`` and ``vlc/lamps`` messages are built in the shared record layouts
+(vlc_common.core.records) that the spot locator and the decoder publish.
 """
 import math
 import pathlib
@@ -22,59 +22,14 @@ from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
-from imu_compensator.core.rotations import quat_from_rpy  # noqa: E402
-from spot_locator import conversions as spot_conversions  # noqa: E402
-from vlc_decoder import conversions as decoder_conversions  # noqa: E402
-from vlc_stereo_camera.core.camera import StereoRig  # noqa: E402
-from vlc_stereo_camera.core.lamp_map import straight_tunnel_map  # noqa: E402
-from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration  # noqa: E402
-
 from train_localizer import conversions  # noqa: E402
-from train_localizer.core.simulation import (SensorErrors, SensorSimulator,  # noqa: E402
-                                             event_stream, from_stamp_ns)
+from vlc_common.stamps import header  # noqa: E402
+from vlc_stereo_camera.core.upstream import constant_speed_run, from_stamp_ns  # noqa: E402
+from vlc_stereo_camera.upstream_messages import (CAMERA_FRAME, imu_msg, lamps_msg,  # noqa: E402
+                                                 spots_msg)
 from train_localizer.train_localizer_node import PARAMETERS, TrainLocalizerNode  # noqa: E402
 
 pytestmark = pytest.mark.ros
-
-def header(stamp_ns, frame='camera_left_optical_frame'):
-    return Header(stamp=conversions.ns_to_stamp(stamp_ns), frame_id=frame)
-
-
-def imu_msg(sample):
-    msg = Imu(header=header(sample.stamp_ns, 'base_link'))
-    a, w, q = sample.accel_mps2, sample.gyro_rps, sample.quat_xyzw
-    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = map(float, a)
-    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = map(float, w)
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
-    msg.orientation_covariance = [float(v) for v in sample.attitude_cov_rad2.ravel()]
-    return msg
-
-
-def spots_msg(stamp_ns, observations):
-    rec = np.zeros(len(observations), dtype=spot_conversions.PAIR_DTYPE)
-    for i, o in enumerate(observations):
-        rec[i]['u_left'], rec[i]['v_left'] = o.uv_left
-        rec[i]['u_right'], rec[i]['v_right'] = o.uv_right
-        rec[i]['disparity'] = o.disparity_px
-        rec[i]['stamp_offset_s'] = math.nan
-        for f in ('sigma_u_left', 'sigma_v_left', 'sigma_u_right', 'sigma_v_right'):
-            rec[i][f] = o.sigma_u_px
-        rec[i]['sigma_disparity'] = math.sqrt(2.0) * o.sigma_u_px
-    return spot_conversions.records_to_cloud(rec, header(stamp_ns))
-
-
-def lamps_msg(stamp_ns, observations):
-    rec = np.zeros(len(observations), dtype=decoder_conversions.LAMP_DTYPE)
-    for i, o in enumerate(observations):
-        rec[i]['track_id'] = i + 1
-        rec[i]['uid'] = o.uid or 0
-        rec[i]['state'] = 2 if o.uid is not None else 1
-        rec[i]['t_offset_s'] = math.nan
-        # The decoder's centre is coarser than the spot locator's.
-        rec[i]['left_u'], rec[i]['left_v'] = o.uv_left[0] + 0.6, o.uv_left[1] - 0.4
-        rec[i]['right_u'], rec[i]['right_v'] = o.uv_right
-    return decoder_conversions.records_to_cloud(rec, header(stamp_ns))
-
 
 class Harness:
     """Localizer node + a test node, one executor, lock-step publishing."""
@@ -146,17 +101,9 @@ def harness(ros_env):
         h.close()
 
 
-def simulated(speed_kmh, t_end, seed):
-    traj = Trajectory(MotionProfile('constant', start_chainage_m=0.0, speed_mps=speed_kmh / 3.6),
-                      Vibration(seed=seed))
-    sim = SensorSimulator(traj, StereoRig(), straight_tunnel_map(), SensorErrors(),
-                          np.random.default_rng(seed))
-    return traj, event_stream(sim, 0.0, t_end)
-
-
 def test_node_publishes_pose_covariance_and_odometry_against_truth(harness):
     h = harness()
-    traj, events = simulated(60.0, 1.2, seed=21)
+    traj, events = constant_speed_run(60.0, 1.2, seed=21)
     for _, kind, payload in events:
         if kind == 'imu':
             h.send_imu(imu_msg(payload))
@@ -194,7 +141,7 @@ def test_node_publishes_pose_covariance_and_odometry_against_truth(harness):
 
 def test_no_pose_before_a_confirmed_uid_and_waiting_reported(harness):
     h = harness({'diagnostics_period_s': 0.1})
-    _, events = simulated(40.0, 0.5, seed=22)
+    _, events = constant_speed_run(40.0, 0.5, seed=22)
     for _, kind, payload in events:
         if kind == 'imu':
             h.send_imu(imu_msg(payload))
@@ -211,7 +158,7 @@ def test_no_pose_before_a_confirmed_uid_and_waiting_reported(harness):
 
 def test_node_survives_bad_input_and_reports_it(harness):
     h = harness({'diagnostics_period_s': 0.1})
-    _, events = simulated(40.0, 0.8, seed=23)
+    _, events = constant_speed_run(40.0, 0.8, seed=23)
     for _, kind, payload in events:
         if kind == 'imu':
             h.send_imu(imu_msg(payload))
@@ -242,7 +189,7 @@ def test_node_survives_bad_input_and_reports_it(harness):
         msg.header.stamp = conversions.ns_to_stamp(last + k * 2_500_000)
         h.send_imu(msg)
     assert loc.monitor.counters.unknown_uid == 1
-    broken = PointCloud2(header=header(stamp), height=1, width=1, point_step=8,
+    broken = PointCloud2(header=header(stamp, CAMERA_FRAME), height=1, width=1, point_step=8,
                          fields=[PointField(name='u_left', offset=0, datatype=7, count=1)],
                          data=bytes(8))
     h.pub_spots.publish(broken)
@@ -261,64 +208,6 @@ def test_node_survives_bad_input_and_reports_it(harness):
     assert values['unknown_uid'] == '1' and values['time_resets'] == '1'
     assert values['last_unknown_uid'] == '0x7abc'
     assert values['integrity_state'] == 'waiting_for_uid'
-
-
-def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
-    """localizer_replay reads the inputs a graph recorded and scores the core's poses."""
-    from rclpy.serialization import serialize_message
-
-    from train_localizer import replay
-    from train_localizer.bagtools.bagio import write_bag
-
-    traj, events = simulated(60.0, 1.5, seed=22)
-    msgs = []
-    for arrival_s, kind, payload in events:
-        t_ns = int(round(arrival_s * 1e9))
-        if kind == 'imu':
-            # the same samples as the compensator's input (it ignores the orientation)
-            for topic in ('/imu/data', '/imu/data_raw'):
-                msgs.append((topic, 'sensor_msgs/msg/Imu', t_ns,
-                             serialize_message(imu_msg(payload))))
-            continue
-        stamp, observations, _ = payload
-        msgs.append(('/spots/pairs', 'sensor_msgs/msg/PointCloud2', t_ns,
-                     serialize_message(spots_msg(stamp, observations))))
-        msgs.append(('/vlc/lamps', 'sensor_msgs/msg/PointCloud2', t_ns + 1000,
-                     serialize_message(lamps_msg(stamp, observations))))
-        truth = PoseStamped(header=header(stamp, 'map'))
-        state = traj.sample(from_stamp_ns(stamp))
-        p = state.position_m.reshape(-1)
-        truth.pose.position.x, truth.pose.position.y, truth.pose.position.z = map(float, p)
-        o = truth.pose.orientation
-        o.x, o.y, o.z, o.w = map(float, quat_from_rpy(*state.rpy_rad.reshape(-1)))
-        msgs.append(('/ground_truth/pose', 'geometry_msgs/msg/PoseStamped', t_ns,
-                     serialize_message(truth)))
-    msgs.sort(key=lambda m: m[2])
-    bag = tmp_path / 'run'
-    write_bag(bag, msgs)
-    result = replay.replay(bag, replay.load_params())
-    scores = replay.score(result)
-    assert scores['poses'] > 30
-    assert scores['error']['max_m'] < 0.06
-    assert scores['fix_status'].get('accepted', 0) > 10
-    # a switch changes what runs: raw single-frame fixes only with use_kalman off
-    raw = replay.replay(bag, replay.load_params(overrides={'use_kalman': False}))
-    assert raw.pose_t.size and raw.pose_t.size != result.pose_t.size
-    with pytest.raises(ValueError):
-        replay.load_params(overrides={'no_such_parameter': 1})
-    # --compensator: the attitude loop re-run on /imu/data_raw, the localizer's aids fed
-    # back (an ideal gyro here: the cold start's heading comes from the lamps)
-    loop = replay.CompensatorLoop()
-    closed = replay.score(replay.replay(bag, replay.load_params(), loop), settle_s=0.5)
-    assert loop.compensator.stats.accepted > 400 and loop.compensator.stats.aiding_used > 2
-    assert closed['poses'] > 30 and closed['error']['max_m'] < 0.06
-    assert closed['heading_max_abs_deg'] < 0.5
-    # no aiding: the cold start keeps the heading it guessed (the track's), off by the sway
-    blind = replay.score(replay.replay(bag, replay.load_params(
-        overrides={'attitude_aiding_period_s': 0.0}), replay.CompensatorLoop()), settle_s=0.5)
-    assert blind['heading_max_abs_deg'] > closed['heading_max_abs_deg']
-    with pytest.raises(ValueError):
-        replay.CompensatorLoop(overrides={'no_such_parameter': 1})
 
 
 # --- the curvature re-acquisition aid ------------------------------------------------
@@ -356,7 +245,7 @@ def test_curvature_match_applied_when_uncertain_and_reported(harness):
     pub = h.test.create_publisher(PoseWithCovarianceStamped,
                                   'companion/curvature/pose_with_covariance', 10)
     assert h.spin_until(lambda: pub.get_subscription_count() > 0)
-    traj, events = simulated(36.0, 0.4, seed=24)
+    traj, events = constant_speed_run(36.0, 0.4, seed=24)
     imu = [p for _, kind, p in events if kind == 'imu']
     for sample in imu:
         h.send_imu(imu_msg(sample))

@@ -10,9 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from vlc_stereo_camera.core.alignment import Alignment
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.lamp_map import alignment_lamp_map
+from vlc_common.core.alignment import Alignment
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import alignment_lamp_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
 from train_localizer.core.fix import RigGeometry
@@ -20,7 +20,7 @@ from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import (APPLIED, IGNORED, REJECTED_GATE, RESET,
                                                 UNCONFIRMED, ChainageAid, ReacquisitionConfig,
                                                 chainage_measurement)
-from train_localizer.core.simulation import (SensorErrors, SensorSimulator, dark_lamps,
+from vlc_stereo_camera.core.upstream import (SensorErrors, SensorSimulator, dark_lamps,
                                              event_stream, feed_localizer, from_stamp_ns)
 from train_localizer.core.track import Track
 

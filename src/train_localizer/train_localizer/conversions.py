@@ -6,7 +6,7 @@ Inputs:
   the messages' own named fields (:func:`cloud_to_records`); the field meanings are the
   producers' (docs/arch/spot_locator.md, docs/arch/vlc_decoder.md) and are read in
   :mod:`train_localizer.core.join`;
-* ``imu/data`` (sensor_msgs/Imu) → :class:`~train_localizer.core.observation.ImuSample`;
+* ``imu/data`` (sensor_msgs/Imu) → :class:`~vlc_common.core.observation.ImuSample`;
 * ``stereo/*/camera_info`` → rectified intrinsics and baseline.
 
 Outputs: a :class:`~train_localizer.core.localizer.PoseEstimate` → PoseStamped,
@@ -19,9 +19,9 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from vlc_stereo_camera.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
+from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 
-from .core.observation import ImuSample, NS_PER_S
+from vlc_common.core.observation import ImuSample, NS_PER_S
 
 
 

@@ -45,23 +45,23 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.parameters import descriptor as _desc
-from vlc_stereo_camera.polled import PolledSubscription
-from vlc_stereo_camera.process import freeze_start_up_objects, spin_until_shutdown
-from vlc_stereo_camera.throttled_log import ThrottledWarnings
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import PolledSubscription
+from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_common.throttled_log import ThrottledWarnings
 
-from . import conversions
-from .core.fix import FixConfig, RigGeometry
-from .core.integrity import IntegrityConfig, Level
-from .core.join import FrameJoiner, JoinConfig
-from .core.kalman import KalmanConfig
-from .core.localizer import Localizer, LocalizerConfig
-from .core.reacquisition import (APPLIED, BAD_INPUT, IGNORED, REJECTED_GATE, RESET,
+from train_localizer import conversions
+from train_localizer.core.fix import FixConfig, RigGeometry
+from train_localizer.core.integrity import IntegrityConfig, Level
+from train_localizer.core.join import FrameJoiner, JoinConfig
+from train_localizer.core.kalman import KalmanConfig
+from train_localizer.core.localizer import Localizer, LocalizerConfig
+from train_localizer.core.reacquisition import (APPLIED, BAD_INPUT, IGNORED, REJECTED_GATE, RESET,
                                  ChainageAid, ReacquisitionConfig, chainage_measurement)
-from .core.standstill import StandstillConfig
-from .core.track import Track
+from train_localizer.core.standstill import StandstillConfig
+from train_localizer.core.track import Track
 
 _RIG = StereoRig()
 _DEG = math.pi / 180.0
@@ -78,7 +78,7 @@ PARAMETERS = (
     ('map_frame_id', 'map', _desc('Frame of the published poses.')),
     ('base_frame_id', 'base_link', _desc('Child frame of the odometry (the train head).')),
     ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
-    ('alignment', '', _desc("Track alignment (vlc_stereo_camera.core.alignment names: "
+    ('alignment', '', _desc("Track alignment (vlc_common.core.alignment names: "
                             "straight, curved_demo, ...); '' = the one the lamp map names.")),
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
     ('publish_on_fix', True, _desc('Also publish right after each fix (lower latency).')),
@@ -252,7 +252,7 @@ class TrainLocalizerNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
         # The 400 Hz IMU (and the per-frame camera_info, of which only the latest matters)
-        # bypass the executor: taken in batches by _drain() (vlc_stereo_camera.polled).
+        # bypass the executor: taken in batches by _drain() (vlc_common.polled).
         poll_s = p['imu_poll_period_s']
         self._imu_polled = (PolledSubscription(self, Imu, 'imu/data', IMU_QOS)
                             if poll_s > 0.0 else None)

@@ -262,7 +262,7 @@ def test_parameter_file_and_declared_defaults_carry_the_same_signal_timing():
 def test_warm_up_runs_the_confirming_path_on_a_throwaway_tracker():
     from vlc_decoder.core.config import DecoderConfig
     from vlc_decoder.vlc_decoder_node import warm_up
-    from vlc_stereo_camera.core.lamp_map import straight_tunnel_map
+    from vlc_common.core.lamp_map import straight_tunnel_map
     lamp_map = straight_tunnel_map(count=3)
     assert warm_up(DecoderConfig(), lamp_map) == 1      # the near lamp, from the map
     assert warm_up(DecoderConfig(), None) == 1          # no map: the worked example's UID

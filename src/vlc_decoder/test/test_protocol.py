@@ -1,13 +1,14 @@
 """Decoder against vectors built from the text of shared/VLC_PROTOCOL.md.
 
-Nothing here uses the rig's transmitter (vlc_stereo_camera.core.vlc_protocol): the
+Nothing here uses the shared protocol module's encoder as the reference: the
 expected chips are typed from the protocol's worked example or built in this file by a
 bit-by-bit reading of the protocol text.
 """
 import numpy as np
 import pytest
 
-from vlc_decoder.core import chips, protocol, synth
+from vlc_common.core import protocol
+from vlc_decoder.core import chips, synth
 from vlc_decoder.core.config import DecoderConfig
 
 # VLC_PROTOCOL.md, "Worked example": line_id 1, lamp_id 42 → UID 0x102A → CRC-8 0x81;
@@ -51,7 +52,7 @@ def test_crc_check_value_and_worked_example():
 def test_worked_example_chips():
     assert len(WORKED_CHIPS) == protocol.PACKET_CHIPS == 54
     assert text_packet(1, 42) == WORKED_CHIPS
-    assert ''.join(map(str, protocol.encode_packet(WORKED_UID))) == WORKED_CHIPS
+    assert ''.join(map(str, protocol.packet_chips(WORKED_UID))) == WORKED_CHIPS
 
 
 def test_decode_worked_example_from_chips():

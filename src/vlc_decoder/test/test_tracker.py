@@ -146,7 +146,7 @@ rig = pytest.importorskip('vlc_stereo_camera.core.renderer')
 
 
 def rig_pass(speed_kmh, n_lamps, seed, cfg=CFG, **renderer_kw):
-    from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+    from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
     from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
     lamps = LampMap.load(resolve_lamp_map_path(''))
     trajectory = Trajectory(MotionProfile('constant', start_chainage_m=-2.0,

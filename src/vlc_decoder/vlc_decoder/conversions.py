@@ -1,44 +1,14 @@
 r"""Messages ↔ arrays for the decoder node: images in, lamp records and diagnostics out.
 
-``vlc/lamps`` (sensor_msgs/PointCloud2, one point per lamp seen in the frame, header =
-the left image's header, little endian, ``point_step`` 112):
-
-| field | type | offset | unit / meaning |
-|---|---|---|---|
-| map_x, map_y, map_z | float64 | 0, 8, 16 | m, lamp disc centre in the lamp map's frame (map) once confirmed; NaN otherwise (not x/y/z: the header frame is the camera's) |
-| track_id | uint32 | 24 | decoder track (stable while the lamp is followed) |
-| uid | uint32 | 28 | lamp UID when state is confirmed (2) or anomaly (3); 0 otherwise |
-| state | uint32 | 32 | 0 searching, 1 partial, 2 confirmed, 3 anomaly (CRC-valid UID absent from the lamp map: not a lamp) |
-| chips_seen | uint32 | 36 | packet chips (of 54) read so far |
-| bits_known | uint32 | 40 | data bits (of 24) read, once the packet start is located |
-| flags | uint32 | 44 | bit 0 left spot, 1 right spot, 2 left cut by the border, 3 right cut, 4 stripes read from the left image, 5 from the right, 6 lamp clock off-spec (aligned by content) |
-| t_offset_s | float64 | 48 | s, exposure mid-time of the spot's rows minus the header stamp |
-| left_u, left_v | float32 | 56, 60 | px, spot centre in the left image (NaN if not seen) |
-| left_u_min, left_v_min, left_u_max, left_v_max | float32 | 64–76 | px, spot bounding box (inclusive) |
-| right_u, right_v | float32 | 80, 84 | px, right image |
-| right_u_min, right_v_min, right_u_max, right_v_max | float32 | 88–100 | px |
-| data_bits | uint32 | 104 | the 24 data bits (UID << 8 \| CRC-8, MSB first) read so far, once the packet start is located; unknown bits 0 |
-| data_mask | uint32 | 108 | 1 for each data bit known: a partial packet, to be matched against the lamp the map predicts at that place, never a UID |
+``vlc/lamps`` layout: :data:`vlc_common.core.records.LAMP_DTYPE`.
 """
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from vlc_stereo_camera.pointcloud import records_to_cloud  # noqa: F401 (re-exported)
+from vlc_common.core.records import (FLAG_CONTENT_ALIGNED, FLAG_LEFT, FLAG_LEFT_CUT,  # noqa: F401
+                                     FLAG_READ_LEFT, FLAG_READ_RIGHT, FLAG_RIGHT,
+                                     FLAG_RIGHT_CUT, LAMP_DTYPE)
+from vlc_common.pointcloud import records_to_cloud  # noqa: F401 (re-exported)
 
-FLAG_LEFT, FLAG_RIGHT, FLAG_LEFT_CUT, FLAG_RIGHT_CUT = 1, 2, 4, 8
-FLAG_READ_LEFT, FLAG_READ_RIGHT, FLAG_CONTENT_ALIGNED = 16, 32, 64
-
-LAMP_DTYPE = np.dtype([
-    ('map_x', '<f8'), ('map_y', '<f8'), ('map_z', '<f8'),
-    ('track_id', '<u4'), ('uid', '<u4'), ('state', '<u4'), ('chips_seen', '<u4'),
-    ('bits_known', '<u4'), ('flags', '<u4'),
-    ('t_offset_s', '<f8'),
-    ('left_u', '<f4'), ('left_v', '<f4'),
-    ('left_u_min', '<f4'), ('left_v_min', '<f4'), ('left_u_max', '<f4'), ('left_v_max', '<f4'),
-    ('right_u', '<f4'), ('right_v', '<f4'),
-    ('right_u_min', '<f4'), ('right_v_min', '<f4'), ('right_u_max', '<f4'),
-    ('right_v_max', '<f4'),
-    ('data_bits', '<u4'), ('data_mask', '<u4'),
-])
 
 
 # encoding → (channels, bytes per channel, OpenCV conversion to gray or None)

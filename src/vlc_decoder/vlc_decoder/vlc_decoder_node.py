@@ -41,15 +41,15 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.process import (freeze_start_up_objects, keep_large_buffers,
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.process import (freeze_start_up_objects, keep_large_buffers,
                                        spin_until_shutdown)
-from vlc_stereo_camera.throttled_log import ThrottledWarnings
+from vlc_common.throttled_log import ThrottledWarnings
 
-from . import conversions
-from .core.config import DecoderConfig
-from .core import synth
-from .core.tracker import ANOMALY, CONFIRMED, LampTracker
+from vlc_decoder import conversions
+from vlc_decoder.core.config import DecoderConfig
+from vlc_decoder.core import synth
+from vlc_decoder.core.tracker import ANOMALY, CONFIRMED, LampTracker
 
 WARN_THROTTLE_S = 2.0
 

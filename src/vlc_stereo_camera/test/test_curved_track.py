@@ -15,11 +15,11 @@ import yaml
 from rclpy.parameter import Parameter
 
 from vlc_stereo_camera.adis16488_node import Adis16488Node
-from vlc_stereo_camera.core.alignment import Alignment
-from vlc_stereo_camera.core.camera import StereoRig
-from vlc_stereo_camera.core.geometry import rpy_to_matrix
+from vlc_common.core.alignment import Alignment
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.rotations import rpy_to_matrix
 from vlc_stereo_camera.core.imu_model import Adis16488Model, ImuSampler, true_imu_signals
-from vlc_stereo_camera.core.lamp_map import LampMap
+from vlc_common.core.lamp_map import LampMap
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import SensorConfig
 from vlc_stereo_camera.core.trajectory import (GRAVITY_MPS2, MotionProfile, Trajectory,
@@ -28,6 +28,7 @@ from vlc_stereo_camera.imu_conversions import imu_arrays
 from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config'
+MAPS = pathlib.Path(__file__).resolve().parents[2] / 'vlc_common' / 'config'
 
 
 @pytest.fixture(scope='module')
@@ -37,7 +38,7 @@ def demo():
 
 @pytest.fixture(scope='module')
 def curved_map():
-    return LampMap.load(CONFIG / 'lamp_map_curved_demo.yaml')
+    return LampMap.load(MAPS / 'lamp_map_curved_demo.yaml')
 
 
 def _legacy_straight_sample(traj, t):
@@ -270,13 +271,13 @@ def test_stereo_camera_node_ground_truth_follows_the_curve(ros_env):
     from sensor_msgs.msg import Image, PointCloud2
 
     from vlc_stereo_camera import conversions
-    from vlc_stereo_camera.core.geometry import quat_xyzw_to_matrix
+    from vlc_common.core.rotations import quat_to_matrix
     from vlc_stereo_camera.stereo_camera_node import StereoCameraNode
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
     params = {'alignment': 'curved_demo',
-              'lamp_map_path': str(CONFIG / 'lamp_map_curved_demo.yaml'),
+              'lamp_map_path': str(MAPS / 'lamp_map_curved_demo.yaml'),
               'start_chainage_m': 375.0, 'speed_kmh': 18.0, 'vibration_enabled': False,
               'duration_s': 0.2, 'realtime_factor': 0.0, 'wait_for_subscribers': 1,
               'publish_clock': False, 'noise_bank_size': 1}
@@ -313,7 +314,7 @@ def test_stereo_camera_node_ground_truth_follows_the_curve(ros_env):
         assert (p.x, p.y, p.z) == (pytest.approx(expected.x_m[0], abs=1e-8),
                                    pytest.approx(expected.y_m[0], abs=1e-8), 0.0)
         o = msg.pose.orientation
-        R = quat_xyzw_to_matrix([o.x, o.y, o.z, o.w])
+        R = quat_to_matrix([o.x, o.y, o.z, o.w])
         assert np.arctan2(R[1, 0], R[0, 0]) == pytest.approx(expected.heading_rad[0], abs=1e-9)
     rec = conversions.cloud_to_records(got['spots'][-1])
     assert (2 << 12 | 38) in rec['uid'].tolist()

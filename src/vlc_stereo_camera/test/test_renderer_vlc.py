@@ -7,7 +7,7 @@ division, Manchester 1 → on,off / 0 → off,on, header 111000, MSB first.
 import numpy as np
 import pytest
 
-from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig
 from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,

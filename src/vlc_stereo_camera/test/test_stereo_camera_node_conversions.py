@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from vlc_stereo_camera import conversions
-from vlc_stereo_camera.core.camera import CameraIntrinsics
+from vlc_common.core.camera import CameraIntrinsics
 from vlc_stereo_camera.core.renderer import LampTruth, RendererConfig
 
 

@@ -40,12 +40,12 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
-from .core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
+from vlc_stereo_camera.core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
                              Adis16488Params, ImuSampler)
-from .imu_conversions import (epoch_to_ns, imu_message, ns_to_time, sample_stamp_ns,
+from vlc_stereo_camera.imu_conversions import (epoch_to_ns, imu_message, ns_to_time, sample_stamp_ns,
                               set_imu_sample)
-from .rig_params import ScenarioConfig, declare_scenario_parameters
-from .parameters import descriptor as _desc
+from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
+from vlc_common.parameters import descriptor as _desc
 
 #: Samples are generated in blocks of this much simulated time and published from the
 #: block as they fall due (one trajectory evaluation per block instead of per tick); it

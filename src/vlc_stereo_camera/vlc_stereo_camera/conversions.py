@@ -32,7 +32,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from .pointcloud import cloud_to_records, records_to_cloud  # noqa: F401 (re-exported)
+from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401 (re-exported)
 
 SPOT_DTYPE = np.dtype({
     'names': ['uid', 'in_left', 'in_right', 'row_first', 'row_last', 'u_left', 'v_left',

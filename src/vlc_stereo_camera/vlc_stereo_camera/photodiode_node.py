@@ -46,12 +46,15 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from .core.lamp_map import LampMap, resolve_lamp_map_path
-from .core.photodiode import Photodiode, PhotodiodeConfig
-from .imu_conversions import epoch_to_ns, ns_to_time, sample_stamp_ns, time_to_ns
-from .parameters import descriptor as _desc
-from .pointcloud import records_to_cloud
-from .rig_params import ScenarioConfig, declare_scenario_parameters
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.optical_channel import PhotodiodeConfig
+from vlc_common.core.records import RSSI_DTYPE
+from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
+from vlc_stereo_camera.core.photodiode import Photodiode
+from vlc_stereo_camera.imu_conversions import epoch_to_ns, ns_to_time, sample_stamp_ns, time_to_ns
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.pointcloud import records_to_cloud
+from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 
 #: Exit code of an invalid configuration (as the other rig nodes).
 EXIT_INVALID_CONFIG = 2
@@ -61,41 +64,6 @@ PACE_PERIOD_S = 0.005
 _STR = ParameterType.PARAMETER_STRING
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _PD = PhotodiodeConfig()
-
-#: The ``photodiode/rssi`` record layout.
-RSSI_DTYPE = np.dtype({'names': ['uid', 'snr_db', 'power_w', 'power_sigma_w'],
-                       'formats': ['<u4', '<f4', '<f8', '<f8'],
-                       'offsets': [0, 4, 8, 16], 'itemsize': 24})
-
-#: Channel parameters: what a receiver must know to invert the channel. The RSSI
-#: localizer declares the same table (companion_localizers), so both sides read one
-#: parameter file's values. (name, default, descriptor); see config/photodiode_node.yaml.
-CHANNEL_PARAMETERS = (
-    ('pd_mount_xyz_m', list(_PD.mount_xyz_m), _desc('Photodiode position in base_link '
-                                                    '[x, y, z], m.', ptype=_ARRAY)),
-    ('pd_azimuth_deg', _PD.azimuth_deg, _desc('PD normal turned from base_link +y (toward '
-                                              'the left wall) to +x (forward), deg.',
-                                              -180.0, 180.0)),
-    ('pd_elevation_deg', _PD.elevation_deg, _desc('PD normal above the horizontal, deg.',
-                                                  -90.0, 90.0)),
-    ('pd_fov_half_angle_deg', _PD.fov_half_angle_deg, _desc('Receiver field of view '
-                                                            '(half angle), deg.', 1.0, 89.0)),
-    ('pd_area_m2', _PD.area_m2, _desc('Detector area, m^2.', 1e-8, 1e-2)),
-    ('pd_filter_transmission', _PD.filter_transmission, _desc('Optical filter gain Ts.',
-                                                              1e-3, 1.0)),
-    ('pd_refractive_index', _PD.refractive_index, _desc('Concentrator refractive index n '
-                                                        '(gain n^2 / sin^2 FOV).', 1.0, 3.0)),
-    ('pd_responsivity_a_per_w', _PD.responsivity_a_per_w, _desc('Photodiode responsivity, '
-                                                                'A/W.', 1e-3, 2.0)),
-    ('lamp_optical_power_w', _PD.lamp_optical_power_w, _desc('Optical power of a lamp when '
-                                                             '"on", W.', 1e-3, 1e3)),
-    ('lamp_half_power_angle_deg', _PD.lamp_half_power_angle_deg,
-     _desc('Lamp semi-angle at half power, deg (Lambertian order m = -ln2/ln cos).',
-           1.0, 89.0)),
-    ('lamp_power_sigma_rel', _PD.lamp_power_sigma_rel,
-     _desc('1-sigma relative deviation of each lamp\'s actual power from the nominal (fixed '
-           'per lamp, unknown to the receiver).', 0.0, 0.5)),
-)
 
 #: Noise and node parameters of the PD itself.
 NODE_PARAMETERS = (
@@ -111,7 +79,7 @@ NODE_PARAMETERS = (
                                       'photodiode/rssi has this many subscribers.', 0, 100,
                                       integer=True)),
     ('frame_id', 'photodiode_link', _desc('frame_id of the published records.', ptype=_STR)),
-    ('lamp_map_path', '', _desc("Lamp map YAML; '' = share/vlc_stereo_camera/config/"
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = share/vlc_common/config/"
                                 'lamp_map.yaml.', ptype=_STR)),
     ('subsamples', 5, _desc('Instants averaged over one integration window.', 1, 100,
                             integer=True)),
@@ -134,33 +102,6 @@ NODE_PARAMETERS = (
     ('min_snr_db', _PD.min_snr_db, _desc('Lamps with a lower estimate SNR are not reported, '
                                          'dB.', -50.0, 200.0)),
 )
-
-
-def declare_channel_parameters(node):
-    """Declare :data:`CHANNEL_PARAMETERS` on ``node``; returns their values (dict)."""
-    for name, default, descriptor in CHANNEL_PARAMETERS:
-        node.declare_parameter(name, default, descriptor)
-    return {name: node.get_parameter(name).value for name, _, _ in CHANNEL_PARAMETERS}
-
-
-def photodiode_config(channel, **noise):
-    """PhotodiodeConfig from channel parameter values (and optional noise keywords).
-
-    Raises ValueError for an invalid combination (e.g. a mount that is not 3 numbers).
-    """
-    mount = [float(v) for v in channel['pd_mount_xyz_m']]
-    if len(mount) != 3:
-        raise ValueError(f'pd_mount_xyz_m must be [x, y, z] in metres, got {mount}')
-    return PhotodiodeConfig(
-        mount_xyz_m=tuple(mount), azimuth_deg=channel['pd_azimuth_deg'],
-        elevation_deg=channel['pd_elevation_deg'],
-        fov_half_angle_deg=channel['pd_fov_half_angle_deg'], area_m2=channel['pd_area_m2'],
-        filter_transmission=channel['pd_filter_transmission'],
-        refractive_index=channel['pd_refractive_index'],
-        responsivity_a_per_w=channel['pd_responsivity_a_per_w'],
-        lamp_optical_power_w=channel['lamp_optical_power_w'],
-        lamp_half_power_angle_deg=channel['lamp_half_power_angle_deg'],
-        lamp_power_sigma_rel=channel['lamp_power_sigma_rel'], **noise)
 
 
 @dataclass

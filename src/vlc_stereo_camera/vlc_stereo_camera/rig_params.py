@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 from rcl_interfaces.msg import ParameterType
 
-from .core.alignment import NAMED_ALIGNMENTS, Alignment
-from .core.lamp_map import default_lamp_map_path
-from .core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
-from .parameters import descriptor as _desc
+from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
+from vlc_common.core.lamp_map import default_lamp_map_path
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
+from vlc_common.parameters import descriptor as _desc
 
 
 SCENARIO_PARAMETERS = (

@@ -54,14 +54,14 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from . import conversions
-from .core.camera import CameraIntrinsics, StereoRig
-from .core.lamp_map import LampMap, resolve_lamp_map_path
-from .core.renderer import RendererConfig, StereoRenderer
-from .core.sensor_noise import OpticsConfig, SensorConfig
-from .process import keep_large_buffers
-from .rig_params import declare_scenario_parameters
-from .parameters import descriptor as _desc
+from vlc_stereo_camera import conversions
+from vlc_common.core.camera import CameraIntrinsics, StereoRig
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
+from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
+from vlc_common.process import keep_large_buffers
+from vlc_stereo_camera.rig_params import declare_scenario_parameters
+from vlc_common.parameters import descriptor as _desc
 
 EXIT_INVALID_CONFIG = 2
 
@@ -77,7 +77,7 @@ NODE_PARAMETERS = (
     ('right_frame_id', 'camera_right_optical_frame', _desc('Right image and camera_info '
                                                            'frame.', ptype=_STR)),
     ('lamp_map_path', '', _desc("Lamp map YAML; '' = the installed map of the alignment "
-                                '(share/vlc_stereo_camera/config/lamp_map.yaml for straight, '
+                                '(share/vlc_common/config/lamp_map.yaml for straight, '
                                 'lamp_map_<alignment>.yaml otherwise).', ptype=_STR)),
     ('image_width', 1280, _desc('Image width, px.', 64, 4096, integer=True)),
     ('image_height', 720, _desc('Image height (rows), px.', 48, 4096, integer=True)),

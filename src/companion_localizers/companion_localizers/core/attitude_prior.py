@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from imu_compensator.core.rotations import quat_from_rpy, quat_to_rpy
+from vlc_common.core.rotations import quat_from_rpy, quat_to_rpy
 
 
 def fuse_tilt(quat_xyzw, cov_rad2, tilt_sigma_rad, default_sigma_rad=(0.0087, 0.0087)):

@@ -147,7 +147,7 @@ class BeaconSequenceChecker:
 
     Parameters
     ----------
-    lamp_map : vlc_stereo_camera.core.lamp_map.LampMap
+    lamp_map : vlc_common.core.lamp_map.LampMap
         Lamps sorted by chainage (the map's own order defines the sequence).
     config : BeaconSequenceConfig
     direction : int

@@ -228,7 +228,7 @@ class CurvatureTemplate:
 
     Parameters
     ----------
-    alignment : vlc_stereo_camera.core.alignment.Alignment
+    alignment : vlc_common.core.alignment.Alignment
     config : CurvatureConfig
     """
 
@@ -655,7 +655,7 @@ class CurvatureLocalizer:
 
     Parameters
     ----------
-    alignment : vlc_stereo_camera.core.alignment.Alignment
+    alignment : vlc_common.core.alignment.Alignment
         The line (its curvature is the template).
     config : CurvatureConfig
     match_period_s, speed_timeout_s : float

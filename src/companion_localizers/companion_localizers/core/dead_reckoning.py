@@ -32,9 +32,9 @@ import numpy as np
 
 from train_localizer.core.fix import RigGeometry, measurement_time_ns
 
-from .along_track import H_CHAINAGE
-from .imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
-from .ranging import RangingConfig, range_to_lamp
+from companion_localizers.core.along_track import H_CHAINAGE
+from companion_localizers.core.imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
+from companion_localizers.core.ranging import RangingConfig, range_to_lamp
 
 
 @dataclass
@@ -161,7 +161,7 @@ class DeadReckoning(ImuDrivenLocalizer):
     Parameters
     ----------
     config : DeadReckoningConfig
-    lamp_map : vlc_stereo_camera.core.lamp_map.LampMap
+    lamp_map : vlc_common.core.lamp_map.LampMap
     """
 
     def __init__(self, config, lamp_map):

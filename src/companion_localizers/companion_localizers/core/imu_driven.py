@@ -23,13 +23,13 @@ import time
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from imu_compensator.core.rotations import quat_to_matrix
+from vlc_common.core.rotations import quat_to_matrix
 from train_localizer.core.standstill import StandstillConfig, StandstillDetector
 
-from train_localizer.core.observation import ImuSample
+from vlc_common.core.observation import ImuSample
 
-from .along_track import H_SPEED, AlongTrackFilter, FilterSettings
-from .attitude_prior import fuse_tilt
+from companion_localizers.core.along_track import H_SPEED, AlongTrackFilter, FilterSettings
+from companion_localizers.core.attitude_prior import fuse_tilt
 
 NS_PER_S = 1_000_000_000
 GRAVITY_MPS2 = 9.80665

@@ -30,10 +30,10 @@ import numpy as np
 
 from train_localizer.core.fix import RigGeometry, measurement_time_ns
 
-from .along_track import H_CHAINAGE, H_SPEED
-from .beacon_sequence import BeaconSequenceChecker, BeaconSequenceConfig
-from .imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
-from .ranging import RangingConfig, range_to_lamp
+from companion_localizers.core.along_track import H_CHAINAGE, H_SPEED
+from companion_localizers.core.beacon_sequence import BeaconSequenceChecker, BeaconSequenceConfig
+from companion_localizers.core.imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
+from companion_localizers.core.ranging import RangingConfig, range_to_lamp
 
 
 
@@ -118,7 +118,7 @@ class InsBeacon(ImuDrivenLocalizer):
     Parameters
     ----------
     config : InsBeaconConfig
-    lamp_map : vlc_stereo_camera.core.lamp_map.LampMap
+    lamp_map : vlc_common.core.lamp_map.LampMap
     """
 
     def __init__(self, config, lamp_map):

@@ -83,7 +83,7 @@ def range_to_lamp(obs, geometry, R_map_base, lamp_yz_m, config, attitude_cov_rad
 
     Parameters
     ----------
-    obs : train_localizer.core.observation.LampObservation
+    obs : vlc_common.core.observation.LampObservation
     geometry : train_localizer.core.fix.RigGeometry
     R_map_base : ndarray (3, 3)
         Platform attitude at the measurement instant.

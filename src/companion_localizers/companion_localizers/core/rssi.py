@@ -2,7 +2,7 @@
 
 Each lamp's received power ``P_i`` (the photodiode separates the lamps by their codes)
 is turned into a distance by inverting the Lambertian line-of-sight channel
-(:mod:`vlc_stereo_camera.core.photodiode`, Komine & Nakagawa 2004)::
+(:mod:`vlc_common.core.optical_channel`, Komine & Nakagawa 2004)::
 
     P = P_t·(m + 1)·A·Ts·g / (2π) · cos^m φ · cos ψ / d²
     cos φ = α/d,  α = n_l·(p − l)        (lamp disc normal n_l, lamp l, PD p)
@@ -55,7 +55,7 @@ import math
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from vlc_stereo_camera.core.photodiode import PhotodiodeConfig
+from vlc_common.core.optical_channel import PhotodiodeConfig
 
 SOLVE_MODES = ('auto', 'track', 'free')
 #: Starts of the track-constrained solve tried at most.

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from imu_compensator.core.rotations import (quat_conjugate, quat_multiply, quat_normalize,
+from vlc_common.core.rotations import (quat_conjugate, quat_multiply, quat_normalize,
                                             quat_slerp, quat_to_rotvec, quat_to_rpy)
 
 _LOG = logging.getLogger(__name__)

@@ -53,7 +53,7 @@ import math
 
 import numpy as np
 
-from imu_compensator.core.rotations import (quat_from_rotvec, quat_from_rpy, quat_multiply,
+from vlc_common.core.rotations import (quat_from_rotvec, quat_from_rpy, quat_multiply,
                                             quat_normalize, quat_to_matrix)
 
 GRAVITY_MPS2 = 9.80665

@@ -25,7 +25,7 @@ import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
 from imu_compensator.core.attitude_filter import AttitudeFilter, AttitudeFilterConfig
-from imu_compensator.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
+from vlc_common.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
                                             quat_normalize, quat_to_matrix, quat_to_rotvec,
                                             quat_to_rpy)
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig, ZeroVelocityDetector

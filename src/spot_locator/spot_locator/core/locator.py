@@ -11,12 +11,12 @@ import time
 
 import numpy as np
 
-from . import centres as cm
-from . import deblur as db
-from . import eccentricity as ecc
-from . import synth
-from .detection import DetectConfig, detect_spots
-from .matching import MatchConfig, SpotSummary, match_spots
+from spot_locator.core import centres as cm
+from spot_locator.core import deblur as db
+from spot_locator.core import eccentricity as ecc
+from spot_locator.core import synth
+from spot_locator.core.detection import DetectConfig, detect_spots
+from spot_locator.core.matching import MatchConfig, SpotSummary, match_spots
 
 METHODS = ('centroid', 'ellipse', 'fused', 'chord')
 ECCENTRICITY_MODES = ('off', 'nominal', 'conic')

@@ -1,6 +1,6 @@
 """One lamp, one stereo frame → one along-track fix of ``base_link`` with its variance.
 
-Geometry (conventions of ``vlc_stereo_camera.core.camera``): the left optical centre
+Geometry (conventions of ``vlc_common.core.camera``): the left optical centre
 sits at ``t_base_cam`` in ``base_link``, its optical axes are the columns of
 ``R_base_cam``; the right camera is ``baseline_m`` further along the left optical x
 axis. ``R_map_base`` is the platform attitude (``base_link`` → ``map``).
@@ -35,10 +35,10 @@ import math
 
 import numpy as np
 
-from vlc_stereo_camera.core.camera import StereoRig, mount_rotation
+from vlc_common.core.camera import StereoRig, mount_rotation
 
-from .observation import NS_PER_S
-from .track import Track
+from vlc_common.core.observation import NS_PER_S
+from train_localizer.core.track import Track
 
 
 
@@ -98,7 +98,7 @@ class RigGeometry:
 
     @classmethod
     def from_stereo_rig(cls, rig, row_time_s=30e-6, exposure_s=50e-6):
-        """Geometry of a ``vlc_stereo_camera.core.camera.StereoRig`` (the truth)."""
+        """Geometry of a ``vlc_common.core.camera.StereoRig`` (the truth)."""
         k = rig.intrinsics
         return cls(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, baseline_m=rig.baseline_m,
                    t_base_cam=rig.cam_positions_base()[0], R_base_cam=rig.R_base_cam,

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import enum
 import math
 
-from .observation import NS_PER_S
+from vlc_common.core.observation import NS_PER_S
 
 
 class IntegrityState(enum.Enum):

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .observation import LampObservation
+from vlc_common.core.observation import LampObservation
 
 #: Decoder record fields, in order of preference, for the left-image position.
 LAMP_POSITION_FIELDS = (('left_u', 'left_v'), ('u_left', 'v_left'))

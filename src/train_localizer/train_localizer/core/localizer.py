@@ -40,17 +40,17 @@ import math
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from imu_compensator.core.rotations import quat_to_matrix
-from vlc_stereo_camera.core.geometry import matrix_to_quat_xyzw
+from vlc_common.core.rotations import quat_to_matrix
+from vlc_common.core.rotations import matrix_to_quat_xyzw
 
-from .fix import (FixConfig, RigGeometry, compute_fix, exp_so3, measurement_time_ns,
+from train_localizer.core.fix import (FixConfig, RigGeometry, compute_fix, exp_so3, measurement_time_ns,
                   triangulate, vision_attitude)
-from .integrity import (Contradiction, IntegrityConfig, IntegrityMonitor, Level,
+from train_localizer.core.integrity import (Contradiction, IntegrityConfig, IntegrityMonitor, Level,
                         mahalanobis2, select_association)
-from .kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig, initial_state,
+from train_localizer.core.kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig, initial_state,
                      innovation, predict, update)
-from .observation import NS_PER_S
-from .standstill import StandstillConfig, StandstillDetector
+from vlc_common.core.observation import NS_PER_S
+from train_localizer.core.standstill import StandstillConfig, StandstillDetector
 
 _DEG = math.pi / 180.0
 _GRAVITY_MPS2 = 9.80665
@@ -270,7 +270,7 @@ class Localizer:
 
     Parameters
     ----------
-    lamp_map : vlc_stereo_camera.core.lamp_map.LampMap
+    lamp_map : vlc_common.core.lamp_map.LampMap
     config : LocalizerConfig
     """
 

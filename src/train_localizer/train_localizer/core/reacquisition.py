@@ -45,7 +45,7 @@ import math
 
 import numpy as np
 
-from .observation import NS_PER_S
+from vlc_common.core.observation import NS_PER_S
 
 APPLIED = 'applied'
 RESET = 'reset'

@@ -1,7 +1,7 @@
 """The track the localizer's one unknown, the chainage, lives on.
 
 ``base_link`` rides at a known lateral and vertical offset from the centreline of a
-horizontal alignment (``vlc_stereo_camera.core.alignment``: straights, clothoids,
+horizontal alignment (``vlc_common.core.alignment``: straights, clothoids,
 circular curves). The filter estimates the chainage ``s``; everything in ``map`` follows
 from the alignment: the nominal position ``P(s)``, the running direction ``t(s)`` and the
 left normal ``n(s)``. On the default straight alignment ``P(s) = (s, y0, z0)`` and
@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from vlc_stereo_camera.core.alignment import Alignment
+from vlc_common.core.alignment import Alignment
 
 _E_X = np.array([1.0, 0.0, 0.0])
 _E_Y = np.array([0.0, 1.0, 0.0])

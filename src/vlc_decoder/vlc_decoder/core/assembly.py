@@ -27,10 +27,10 @@ import logging
 
 import numpy as np
 
-from .chips import (MIN_CONTRADICTIONS, OFF, ON, STATUS_INCONSISTENT, STATUS_OK,
+from vlc_decoder.core.chips import (MIN_CONTRADICTIONS, OFF, ON, STATUS_INCONSISTENT, STATUS_OK,
                     chip_states, decide_fold, find_crossings, fold_votes, header_positions,
                     known_bits, packet_states, recover_clock, slice_chips)
-from .protocol import PACKET_CHIPS, encode_packet
+from vlc_common.core.protocol import PACKET_CHIPS, packet_chips
 
 LOG = logging.getLogger(__name__)
 
@@ -268,7 +268,7 @@ class PacketAssembler:
             # a lamp still being read, never carry a confirmed UID
             return not clocked and self.uid is None
         own = self._own_read(frag)['states']
-        packet = np.where(encode_packet(self.uid) == 1, ON, OFF).astype(np.int8)
+        packet = np.where(packet_chips(self.uid) == 1, ON, OFF).astype(np.int8)
         contradictions, _ = overlap_contradictions(own, packet)
         return contradictions.min() < MIN_CONTRADICTIONS
 
@@ -422,7 +422,7 @@ class PacketAssembler:
         self._apply(*outcomes)
         if self.uid is not None and outcomes[0]['uid'] == self.uid:
             # the whole packet where the clock places it: what later spots must show
-            packet = np.where(encode_packet(self.uid) == 1, ON, OFF).astype(np.int8)
+            packet = np.where(packet_chips(self.uid) == 1, ON, OFF).astype(np.int8)
             self.fold = np.roll(packet, outcomes[0]['origin'])
 
     @staticmethod
@@ -436,7 +436,7 @@ class PacketAssembler:
         the clock's grid can also outvote the lamp's own noisy reads, and then the
         decision contradicts the fragments the track was founded on.
         """
-        packet = np.where(encode_packet(outcome['uid']) == 1, ON, OFF).astype(np.int8)
+        packet = np.where(packet_chips(outcome['uid']) == 1, ON, OFF).astype(np.int8)
         in_fold = np.roll(packet, outcome['origin'])
         for frag in used:
             n_on, n_off = frag.votes[0], frag.votes[1]
@@ -576,7 +576,7 @@ class PacketAssembler:
             # a neighbouring lamp of the line share its header and line bits and can be
             # placed by them; the lamp's own fragments then disagree with the packet
             # where the lamp bits and the CRC differ
-            packet = np.where(encode_packet(out['uid']) == 1, ON, OFF).astype(np.int8)
+            packet = np.where(packet_chips(out['uid']) == 1, ON, OFF).astype(np.int8)
             in_fold = np.roll(packet, out['origin'])
             foreign = any(
                 overlap_contradictions(f.own['states'], packet)[0].min() >= MIN_CONTRADICTIONS

@@ -13,7 +13,7 @@ here are exposure mid-times.
 """
 import numpy as np
 
-from .protocol import (CRC8_TABLE, DATA_BITS, HEADER_CHIPS, HEADER_LEN, PACKET_CHIPS,
+from vlc_common.core.protocol import (CRC8_TABLE, DATA_BITS, HEADER_CHIPS, HEADER_LEN, PACKET_CHIPS,
                        bits_to_word)
 
 # a row's vote for a chip is weighted by (fraction of its exposure inside the chip)^4:

@@ -1,6 +1,6 @@
 """Synthetic lamp signals written from ``shared/VLC_PROTOCOL.md`` for tests and benchmarks.
 
-Independent of the rig's transmitter model (``vlc_stereo_camera.core.vlc_protocol``), so
+Independent of the rig's transmitter model (``vlc_stereo_camera.core.transmitter``), so
 that decoder and rig are checked against the protocol text, not against each other.
 Nothing here is used by the decoding itself; the node's warm-up
 (``vlc_decoder_node.warm_up``) decodes a few frames of ``render_stereo``.
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .protocol import PACKET_CHIPS, encode_packet
+from vlc_common.core.protocol import PACKET_CHIPS, packet_chips
 
 
 @dataclass
@@ -29,7 +29,7 @@ class LampSignal:
 
     def __post_init__(self):
         if self.chips is None:
-            self.chips = encode_packet(self.uid)
+            self.chips = packet_chips(self.uid)
         self.chips = np.asarray(self.chips, dtype=float)
         self.levels = self.off_level + (1.0 - self.off_level) * self.chips
         self.cum = np.concatenate([[0.0], np.cumsum(self.levels)])

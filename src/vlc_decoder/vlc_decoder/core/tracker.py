@@ -15,8 +15,8 @@ import logging
 
 import numpy as np
 
-from .assembly import CONFIRMED, PacketAssembler
-from .spots import detect
+from vlc_decoder.core.assembly import CONFIRMED, PacketAssembler
+from vlc_decoder.core.spots import detect
 
 LOG = logging.getLogger(__name__)
 
@@ -211,7 +211,7 @@ class LampTracker:
     ----------
     cfg : DecoderConfig
     lamp_map : object with ``by_uid(uid)`` returning a lamp (with ``position_m``) or
-        None, e.g. ``vlc_stereo_camera.core.lamp_map.LampMap``; None: no lookup
+        None, e.g. ``vlc_common.core.lamp_map.LampMap``; None: no lookup
     max_disparity_px : largest stereo disparity to pair (fx·baseline / nearest depth)
     """
 

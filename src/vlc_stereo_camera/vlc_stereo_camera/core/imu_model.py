@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from .allan import (GM_PEAK_TAU_RATIO, allan_floor, cluster_sizes, fit_white_density,
+from vlc_stereo_camera.core.allan import (GM_PEAK_TAU_RATIO, allan_floor, cluster_sizes, fit_white_density,
                     gauss_markov_adev, overlapping_adev)
 
 GRAVITY_MPS2 = 9.80665

@@ -2,7 +2,7 @@
 
 Usage (tests, benchmarks, integration tests of the receiver packages)::
 
-    from vlc_stereo_camera.core.lamp_map import LampMap, resolve_lamp_map_path
+    from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
     from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
     from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
@@ -60,10 +60,11 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .camera import CameraIntrinsics, StereoRig
-from .geometry import rpy_to_matrix
-from .sensor_noise import OpticsConfig, SensorConfig, SensorModel
-from .vlc_protocol import PACKET_CHIPS, LampWaveform
+from vlc_common.core.camera import CameraIntrinsics, StereoRig
+from vlc_common.core.rotations import rpy_to_matrix
+from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig, SensorModel
+from vlc_common.core.protocol import PACKET_CHIPS
+from vlc_stereo_camera.core.transmitter import LampWaveform
 
 _RIM_POINTS = 32
 _FIXED_POINT_ITERATIONS = 30

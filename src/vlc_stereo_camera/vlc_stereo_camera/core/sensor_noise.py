@@ -37,16 +37,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vlc_common.core.optical_channel import lambertian_order
+
 PLANCK_J_S = 6.62607015e-34
 LIGHT_SPEED_MPS = 299_792_458.0
-
-
-def lambertian_order(half_power_angle_deg):
-    """Generalized Lambertian order m = −ln 2 / ln cos θ½ (60° → 1)."""
-    c = np.cos(np.radians(half_power_angle_deg))
-    if not 0.0 < c < 1.0:
-        raise ValueError(f'half-power angle {half_power_angle_deg} deg must be in (0, 90)')
-    return -np.log(2.0) / np.log(c)
 
 
 @dataclass

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .alignment import Alignment
-from .geometry import matrix_to_quat_xyzw, rpy_to_matrix
+from vlc_common.core.alignment import Alignment
+from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
 
 GRAVITY_MPS2 = 9.80665
 AXES = ('x', 'y', 'z', 'roll', 'pitch', 'yaw')

@@ -1,1 +1,0 @@
-"""Offline accuracy evaluation against ground truth (EVALUATION.md); no rclpy."""

@@ -1,0 +1,41 @@
+"""spin_until_shutdown: a stop by SIGINT is a clean return, whatever rclpy raised."""
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from rclpy.executors import ExternalShutdownException  # noqa: E402
+
+from vlc_common.process import spin_until_shutdown  # noqa: E402
+
+pytestmark = pytest.mark.ros
+
+
+def _raise(exc):
+    def spin():
+        raise exc
+    return spin
+
+
+def test_sigint_and_external_shutdown_return_normally():
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        spin_until_shutdown(_raise(KeyboardInterrupt()), context=ctx)
+        spin_until_shutdown(_raise(ExternalShutdownException()), context=ctx)
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_runtime_error_is_a_stop_only_once_the_context_is_shut_down():
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    convert = RuntimeError("Unable to convert call argument '0' to Python object")
+    try:
+        with pytest.raises(RuntimeError):
+            spin_until_shutdown(_raise(convert), context=ctx)     # a real error
+    finally:
+        rclpy.shutdown(context=ctx)
+    # SIGINT shut the context down first: the same error is the stop
+    spin_until_shutdown(_raise(convert), context=ctx)
+    with pytest.raises(ValueError):
+        spin_until_shutdown(_raise(ValueError('bug')), context=ctx)

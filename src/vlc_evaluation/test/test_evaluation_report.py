@@ -1,0 +1,172 @@
+"""The report writes tables beside the paper's figures, JSON and PNGs from results."""
+import json
+
+import pytest
+
+from vlc_evaluation import report, scenarios
+from vlc_common.core import lamp_map
+
+
+def _static_results():
+    out = []
+    for i, d in enumerate(scenarios.TEST_POINTS_M):
+        err = None if d == 10.0 else 0.01 * (1 + i % 4)
+        raw = {'error_m': None if err is None else 2 * err,
+               'along_m': None if err is None else err}
+        out.append({'point_m': d, 'seed': 1, 'error_m': err,
+                    'along_m': None if err is None else -err,
+                    'raw': {'paper': raw, 'constrained': raw},
+                    'scenario': {'name': f'static_{d}', 'realtime_factor': 1.0,
+                                 'observe_s': 3.0},
+                    'latency_ms': {'decoder': [10.0, 20.0], 'exposure_to_pose': [30.0]},
+                    'processing_ms': {'vlc_decoder': [5.0, 9.0]},
+                    'health': {'degraded': d == 0.5, 'camera_lag_max_s': 0.2 * (d == 0.5)}})
+    return out
+
+
+def _dynamic_results():
+    A, B = '4101', '4102'
+    return [{'speed_kmh': v, 'seed': 1,
+             'points': [{'point_m': 1.0, 'error_m': 0.02 * k, 'along_m': 0.0}
+                        for k in range(1, 5)] + [{'point_m': 9.5, 'error_m': None,
+                                                   'along_m': None}],
+             'every_pose': {'max_m': 0.09, 'mean_m': 0.03, 'count': 100},
+             'covariance_3sigma_fraction': 0.998,
+             'heading_before_deg': {'min': -5.0, 'max': 7.5},
+             'heading_after_deg': {'max_abs': 0.15, 'rms': 0.05},
+             'heading_series': {'t_s': [0.0, 0.02, 0.04], 'after_deg': [0.1, 0.0, -0.1],
+                                'before_deg': [3.0, 4.0, 5.0]},
+             'identification': {'frames': [[4101, 6.5, True, False], [4101, 5.5, True, True],
+                                           [4102, 4.5, True, True]],
+                                'first_confirmation_m': {A: 5.5, B: 4.5 if v == 20 else None},
+                                'wrong_uids': 0, 'anomalies': 0},
+             'scenario': {'name': f'dynamic_{v}', 'realtime_factor': 0.5}, 'attempts': 2,
+             'health': {'degraded': False, 'camera_lag_max_s': 0.0}}
+            for v in (20.0, 120.0)]
+
+
+def test_static_table_counts_misses():
+    table, figures = report.static_table(_static_results())
+    assert figures['ours']['misses'] == 1 and figures['ours']['count'] == 19
+    assert figures['ours']['max_m'] == pytest.approx(0.04)
+    assert '29.73' in table and '| 1 |' in table
+
+
+def test_dynamic_table_availability_and_paper_columns():
+    table, figures = report.dynamic_table(_dynamic_results())
+    assert figures[20]['availability'] == pytest.approx(0.8)
+    assert figures[120]['test_points']['max_m'] == pytest.approx(0.08)
+    assert '32.09' in table                   # paper at 20 km/h
+    assert table.count('\n') == 3             # header, rule, two speeds
+
+
+def test_static_table_has_the_raw_single_frame_rows():
+    table, figures = report.static_table(_static_results())
+    assert figures['raw_paper']['max_m'] == pytest.approx(0.08)
+    assert figures['raw_constrained_along_track']['misses'] == 1
+    assert 'raw single frame, paper eq. 12–14' in table
+
+
+def test_detail_identification_latency_and_health_tables():
+    table, figures = report.dynamic_detail_table(_dynamic_results())
+    assert figures[20]['heading_before_min_deg'] == -5.0
+    assert figures[120]['covariance_3sigma_fraction'] == pytest.approx(0.998)
+    assert '-5.00 … +7.50' in table
+    table, by_dist, figures = report.identification_table(_dynamic_results())
+    assert figures[20]['lamps_identified'] == 2 and figures[120]['lamps_identified'] == 1
+    # only 4102 was seen closer than 5 m (passed); at 120 km/h it was not identified
+    assert figures[20]['lamps_passed'] == 1 and figures[20]['lamps_passed_identified'] == 1
+    assert figures[120]['lamps_passed'] == 1 and figures[120]['lamps_passed_identified'] == 0
+    assert figures[20]['first_confirmation_median_m'] == pytest.approx(5.0)
+    assert figures[20]['identified_frame_rate'] == pytest.approx(2 / 3)
+    assert '| 20 | – | – | – | – | 100 % | 100 % | 0 % |' in by_dist
+    # latency counts only real-time runs when there are any (the static ones here)
+    table, figures = report.latency_table(_static_results() + _dynamic_results())
+    assert figures['runs'] == 20 and figures['decoder']['count'] == 40
+    assert figures['decoder']['processing_median_ms'] == pytest.approx(5.0)
+    assert figures['exposure_to_pose']['median_ms'] == pytest.approx(30.0)
+    text, figures = report.health_summary(_static_results() + _dynamic_results())
+    assert figures['reruns'] == 2 and figures['degraded'] == ['static_0.5']
+    assert figures['realtime_factor_min'] == 0.5
+
+
+def test_write_report_files(tmp_path):
+    replay = [{'bag': 'bags/x', 'poses': 10, 'first_pose_s': 0.2,
+               'every_pose': {'max_m': 0.01, 'mean_m': 0.005, 'p95_m': 0.009},
+               'identification': {'first_confirmation_m': {'1': 3.0, '2': None},
+                                  'wrong_uids': 0, 'frames': []},
+               'health': {'degraded': False, 'camera_lag_max_s': 0.0}}]
+    text = report.write_report(_static_results(), _dynamic_results(), tmp_path,
+                               ablations=('| ablation table |', {'baseline': {}}),
+                               replays=replay)
+    for name in ('static_error_vs_distance.png', 'dynamic_error_per_speed.png',
+                 'heading_compensation.png'):
+        assert (tmp_path / name).stat().st_size > 1000, name
+    data = json.loads((tmp_path / 'report.json').read_text())
+    assert data['figures']['static']['ours']['count'] == 19
+    assert data['figures']['replay']['bags/x']['lamps_identified'] == 1
+    # per-frame arrays stay out of the committed JSON
+    assert 'latency_ms' not in json.dumps(data['dynamic'][0]['identification'])
+    assert 'frames' not in data['dynamic'][0]['identification']
+    assert 'heading_series' not in data['dynamic'][0]
+    assert 'paper' in text and '| ablation table |' in text and '`bags/x`' in text
+    assert 'after 3 s of simulated time' in text
+
+
+def test_latency_runs_are_logged_and_tabled(tmp_path):
+    """Each latency replay run appends its figures; the report tables every one."""
+    assert report.latency_runs_table(tmp_path) == ('', [])
+    for p99, after in ((58.1, 28.7 * 60), (36.0, 0.0)):
+        figures = {'exposure_to_pose': {'count': 259, 'median_ms': 29.0, 'p99_ms': p99,
+                                        'max_ms': p99 + 3.0},
+                   'decoder': {'processing_median_ms': 4.2},
+                   'spot_locator': {'processing_median_ms': None}}
+        report.append_latency_run(tmp_path, 'run_evaluation --latency', figures, after)
+    table, runs = report.latency_runs_table(tmp_path)
+    assert [r['p99_ms'] for r in runs] == [58.1, 36.0]
+    assert [r['after_min'] for r in runs] == [28.7, 0.0]
+    assert table.count('\n') == 3                       # header, rule, two runs
+    assert '| 259 | 29.00 / 58.10 / 61.10 | 4.20 / – / – |' in table
+    replay = [{'bag': 'bags/x', 'poses': 10, 'first_pose_s': 0.2, 'latency_ms': {},
+               'every_pose': {'max_m': 0.01, 'mean_m': 0.005, 'p95_m': 0.009},
+               'identification': {'first_confirmation_m': {}, 'wrong_uids': 0, 'frames': []},
+               'health': {'degraded': False, 'camera_lag_max_s': 0.0}}]
+    text = report.write_report([], [], tmp_path, replays=replay)
+    assert 'Every latency replay run into this output folder' in text and table in text
+
+
+def test_scenario_lists_cover_the_protocols():
+    static = scenarios.static_scenarios()
+    assert len(static) == 200
+    assert {s.static_point_m for s in static} == set(scenarios.TEST_POINTS_M)
+    assert len({s.seed for s in static}) == 10
+    dynamic = scenarios.dynamic_scenarios()
+    assert len(dynamic) == 60
+    assert {s.speed_kmh for s in dynamic} == {20.0, 40.0, 60.0, 80.0, 100.0, 120.0}
+    # Each run starts just past a lamp of the map (the next in view at once), and after
+    # its unscored lead-in (two cells, and 3 s at speed) four lamp cells are scored.
+    lamps_x = lamp_map.straight_tunnel_map().positions[:, 0]
+    for s in dynamic:
+        assert 0.0 < s.start_chainage_m - lamps_x[lamps_x <= s.start_chainage_m].max() <= 1.0
+        v = s.speed_kmh / 3.6
+        settle_s = scenarios.dynamic_settle_s(s.speed_kmh)
+        assert settle_s * v >= 20.0 - 1e-9 and settle_s >= scenarios.LEAD_IN_S - 1e-9
+        assert s.duration_s * v - settle_s * v == pytest.approx(41.0)
+
+
+def test_update_markdown_replaces_only_the_marked_section(tmp_path):
+    report.write_report(_static_results(), _dynamic_results(), tmp_path / 'out')
+    readme = tmp_path / 'README.md'
+    readme.write_text('# Title\n\nintro\n\n## Accuracy\n')
+    report.update_markdown(readme, tmp_path / 'out', 'run_evaluation --protocol demo')
+    first = readme.read_text()
+    assert first.startswith('# Title\n\nintro') and report.BEGIN_MARK in first
+    assert '](docs/evaluation/static_error_vs_distance.png)' in first
+    assert '](docs/evaluation/heading_compensation.png)' in first
+    assert (tmp_path / 'docs/evaluation/static_error_vs_distance.png').exists()
+    assert (tmp_path / 'docs/evaluation/heading_compensation.png').exists()
+    readme.write_text(first + '\nafter\n')
+    report.update_markdown(readme, tmp_path / 'out', 'run_evaluation --protocol full')
+    second = readme.read_text()
+    assert second.count(report.BEGIN_MARK) == 1 and second.endswith('after\n')
+    assert '--protocol full' in second and '--protocol demo' not in second

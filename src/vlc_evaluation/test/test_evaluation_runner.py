@@ -1,0 +1,199 @@
+"""Runner pieces without a graph: fork spawner, lanes, readiness counts, ablation set."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from vlc_evaluation import ablations, graph_runner, runner, scenarios
+
+
+@pytest.fixture(scope='module')
+def spawner():
+    spawner = graph_runner.ForkSpawner([])
+    return spawner
+
+
+def _fork(spawner, tmp_path, entry, argv=()):
+    spawner.entry_points = {'tool': entry}
+    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                  spawner=spawner)
+    exe = tmp_path / 'lib' / 'pkg' / 'tool'
+    exe.parent.mkdir(parents=True, exist_ok=True)
+    exe.touch()
+    graph.start('pkg', 'tool', params={'a': True})
+    return graph
+
+
+def test_forked_entry_point_gets_argv_log_and_cpu_file(spawner, tmp_path):
+    data = tmp_path / 'x.json'
+    data.write_text('{"b": [1, 2]}')
+    spawner.entry_points = {'tool': 'json.tool:main'}
+    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                  spawner=spawner)
+    exe = tmp_path / 'lib' / 'pkg' / 'tool'
+    exe.parent.mkdir(parents=True)
+    exe.touch()
+    # json.tool reads its argv: the file given as its first argument
+    proc = spawner.start(exe, 'tool', [str(data)], graph.env, graph.log_dir / 'tool.log')
+    assert proc.wait(30) == 0
+    assert json.loads((graph.log_dir / 'tool.log').read_text()) == {'b': [1, 2]}
+    assert 'tool' in graph_runner.read_cpu_seconds(graph.log_dir)
+
+
+def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):
+    graph = _fork(spawner, tmp_path, 'signal:pause')
+    with pytest.raises(subprocess.TimeoutExpired):
+        graph.procs['tool'].wait(0.5)
+    codes = graph.stop_all()
+    # signal.pause interrupted: KeyboardInterrupt (exit 1), not a SIGKILL (-9)
+    assert codes == {'tool': 1}
+    assert 'KeyboardInterrupt' in graph.log('tool')
+
+
+def _pausing_tool(tmp_path, spawner, script):
+    """A graph whose executable ``pkg/tool`` waits until signalled: forked from
+    ``spawner`` (``signal.pause``), or, without one, exec'ed from ``script``."""
+    graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
+                                  spawner=spawner)
+    exe = tmp_path / 'lib' / 'pkg' / 'tool'
+    exe.parent.mkdir(parents=True, exist_ok=True)
+    if spawner is not None:
+        spawner.entry_points = {'tool': 'signal:pause'}
+        exe.touch()
+    else:
+        exe.write_text(script)
+        exe.chmod(0o755)
+    return graph
+
+
+@pytest.mark.parametrize('forked', [True, False])
+def test_sigint_stops_the_child_even_when_the_runner_ignores_it(tmp_path, forked):
+    # an evaluation started as a script's background job runs with SIGINT ignored, which
+    # its children would inherit (across exec too) and then never stop on the runner's
+    # SIGINT; the fork server is started here, after SIG_IGN, as in that case
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    spawner = graph_runner.ForkSpawner([]) if forked else None
+    try:
+        graph = _pausing_tool(tmp_path, spawner,
+                              f'#!{sys.executable}\nimport signal\nsignal.pause()\n')
+        graph.start('pkg', 'tool')
+        with pytest.raises(subprocess.TimeoutExpired):
+            graph.procs['tool'].wait(0.5)
+        codes = graph.stop_all()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    # KeyboardInterrupt (exit 1 from the fork server's child; an interpreter that dies of
+    # an uncaught KeyboardInterrupt re-raises SIGINT: -2), not the runner's SIGKILL (-9)
+    # after the SIGINT went unheard
+    assert codes['tool'] in (1, -signal.SIGINT), graph.log('tool')
+    assert 'KeyboardInterrupt' in graph.log('tool')
+
+
+@pytest.mark.parametrize('forked', [True, False])
+def test_nice_lowers_the_priority_of_the_child_only(spawner, tmp_path, forked):
+    graph = _pausing_tool(tmp_path, spawner if forked else None,
+                          '#!/bin/sh\nexec sleep 30\n')
+    proc = graph.start('pkg', 'tool', nice=7)
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    try:
+        deadline = time.monotonic() + 10.0
+        while (os.getpriority(os.PRIO_PROCESS, proc.pid) != base + 7
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == base + 7
+        assert os.getpriority(os.PRIO_PROCESS, 0) == base
+    finally:
+        graph.stop_all()
+    assert graph_runner.NICE_ENV not in graph.env
+
+
+def test_exit_code_of_a_failing_child(spawner, tmp_path):
+    bad = tmp_path / 'bad.json'
+    bad.write_text('{not json')
+    spawner.entry_points = {'tool': 'json.tool:main'}
+    proc = spawner.start(tmp_path / 'tool', 'tool', [str(bad)], {}, tmp_path / 'tool.log')
+    assert proc.wait(30) == 1
+    assert 'Expecting property name' in (tmp_path / 'tool.log').read_text()
+
+
+def test_entry_points_of_the_installed_nodes():
+    found = graph_runner.console_entry_points(runner.EXECUTABLES)
+    assert found.get('vlc_decoder_node') == 'vlc_decoder.vlc_decoder_node:main'
+    assert set(found) == set(runner.EXECUTABLES)
+
+
+def test_lane_domains_are_valid_and_distinct():
+    for pid in (1, 4321, 99999):
+        d = runner.lane_domains(3, pid)
+        assert len(set(d)) == 3 and min(d) >= 120 and max(d) <= 232
+
+
+def test_lane_moves_to_another_valid_domain():
+    lane = runner.Lane(domain_id=230, epoch_s=0.0)
+    seen = set()
+    for _ in range(113):
+        lane.move_domain()
+        assert 120 <= lane.domain_id <= 232
+        seen.add(lane.domain_id)
+    assert len(seen) == 113
+
+
+def test_lane_pace_drops_under_load_and_recovers():
+    lane = runner.Lane(domain_id=1, epoch_s=0.0, min_pace=0.3)
+    lane.slow_down(severe=False)
+    assert lane.pace == pytest.approx(0.8)
+    lane.slow_down()
+    assert lane.pace == pytest.approx(0.4)
+    lane.slow_down()
+    assert lane.pace == lane.min_pace
+    assert lane.ceiling == pytest.approx(0.36)       # 90 % of the pace that failed last
+    lane.recover()
+    lane.recover()
+    assert lane.pace == pytest.approx(0.36)          # back to the ceiling, not beyond
+    paces = []
+    for _ in range(60):
+        lane.recover()
+        paces.append(lane.pace)
+    assert paces[0] == pytest.approx(0.36 * 1.02)     # then probing 2 % per clean run
+    assert 0.4 < paces[9] < 0.5
+    assert lane.pace == 1.0                           # ... up to real time
+    assert runner.Lane(domain_id=1, epoch_s=0.0).min_pace == pytest.approx(0.15)
+    lane.slow_down(severe=False)
+    assert lane.ceiling == pytest.approx(0.9) and lane.pace == pytest.approx(0.8)
+
+
+def test_readiness_counts_include_the_recorder():
+    static = scenarios.static_scenarios(points_m=(5.0,), trials=1)[0]
+    need = runner.required_subscriptions(static.recorded_topics())
+    assert need['/vlc/lamps'] == 2 and need['/train/pose'] == 2       # localizer|probe + rec
+    assert need['/stereo/left/image_raw'] == 2                        # decoder, spot locator
+    assert '/ground_truth/spots' not in need                          # static: not recorded
+    dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1)[0]
+    assert runner.required_subscriptions(dynamic.recorded_topics())['/imu/data_raw'] == 2
+    sensors = scenarios.Scenario(name='s', run_processing=False, record_sensors=True)
+    need = runner.required_subscriptions(sensors.recorded_topics(), processing=False)
+    assert need['/stereo/left/image_raw'] == 1 and '/vlc/lamps' not in need
+
+
+def test_ablation_groups_and_table():
+    groups = ablations.ablation_groups(trials=1, runs=1)
+    assert len(groups) == 2 * len(ablations.VARIANTS)
+    off = groups['ablations/no_fusion/static'][0]
+    assert off.node_params == {'train_localizer_node': {'use_kalman': False}}
+    assert groups['ablations/wiener_on/dynamic'][0].node_params == {
+        'spot_locator_node': {'wiener': True}}
+    assert groups['ablations/baseline/static'][0].node_params == {}
+    results = {'ablations/baseline/static': [{'error_m': 0.01}, {'error_m': None}],
+               'ablations/baseline/dynamic': [
+                   {'speed_kmh': 20.0, 'points': [{'error_m': 0.02}, {'error_m': 0.04}],
+                    'every_pose': {'max_m': 0.05}}],
+               'ablations/no_fusion/static': [{'error_m': 0.03}]}
+    table, figures = ablations.ablation_table(results)
+    assert set(figures) == {'baseline', 'no_fusion'}
+    assert figures['baseline']['static']['misses'] == 1
+    assert figures['baseline']['dynamic'][20]['mean_m'] == pytest.approx(0.03)
+    assert '| 4.00 / 3.00 |' in table and table.count('\n') == 3

@@ -1,0 +1,1 @@
+"""Evaluation of the graph against ground truth, benchmarks and doc writers."""

@@ -1,0 +1,255 @@
+"""``run_evaluation``: runs the graph on the evaluation protocols and writes the report.
+
+Examples::
+
+    run_evaluation --protocol demo                 # make demo: a short default scenario
+    run_evaluation --protocol full --out out/eval  # 20 points x 10 trials, 6 speeds x 10 runs
+    run_evaluation --protocol dynamic --speeds 100 120 --runs 2
+    run_evaluation --protocol full --lanes 2 --rescore --out out/eval   # score again
+    run_evaluation --protocol companions --lanes 1 --out out/companions   # issue 7
+    run_evaluation --protocol none --forged --out out/forged
+    run_evaluation --protocol none --latency --out out/latency       # issue 5's latency
+"""
+import argparse
+import json
+import logging
+import os
+import pathlib
+import sys
+import time
+
+from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
+
+from vlc_evaluation import ablations, companions, report, scenarios
+from vlc_evaluation.graph_runner import SPAWN_MODES
+from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
+
+
+def _progress(done, total, name, started):
+    """A one-line progress bar on stderr (``started``: time.monotonic() at the start)."""
+    elapsed = time.monotonic() - started
+    width = 30
+    filled = int(width * done / total)
+    eta = elapsed / done * (total - done)
+    sys.stderr.write(f'\r[{"#" * filled}{"." * (width - filled)}] {done}/{total} '
+                     f'{name:<28} {elapsed:5.0f} s elapsed, ~{eta:4.0f} s left')
+    if done == total:
+        sys.stderr.write('\n')
+    sys.stderr.flush()
+
+
+# Latency bags: 8 s of sensors (240 stereo frames, 3200 IMU samples) per speed.
+LATENCY_SPEEDS_KMH = (60, 120)
+LATENCY_BAG_S = 8.0
+
+
+def latency_replays(out, rescore=False):
+    """Replay scenarios at real-time factor 1 of the latency sensor bags, recording the
+    bags first (rig and recorder only, slowed to 0.3 so no frame is lost) where missing;
+    a lean recording (no 400 Hz IMU topics)."""
+    replays = []
+    for speed in LATENCY_SPEEDS_KMH:
+        bag = out / 'latency_bags' / f'sensors_{speed:03d}kmh'
+        if not (bag / 'metadata.yaml').exists() and not rescore:
+            # uncompressed: the player would otherwise decompress a zstd chunk of several
+            # frames at once, a CPU burst on the cores the measured nodes share
+            problems = record_sample_bag(bag, sample_scenario(
+                bag.name, float(speed), duration_s=LATENCY_BAG_S, realtime_factor=0.3,
+                compression='none'))
+            for problem in problems:
+                logging.getLogger(__name__).warning('%s: %s', bag, problem)
+        replays.append(scenarios.replay_scenario(bag, 1.0, lean_recording=True))
+    return replays
+
+
+def build_scenarios(args):
+    static, dynamic = [], []
+    if args.protocol == 'demo':
+        static = scenarios.static_scenarios(points_m=(9.0, 5.0, 2.0), trials=1,
+                                            observe_s=args.observe_s)
+        dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4)
+    if args.protocol in ('static', 'full'):
+        static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s)
+    if args.protocol in ('dynamic', 'full'):
+        dynamic = scenarios.dynamic_scenarios(speeds_kmh=tuple(args.speeds), runs=args.runs,
+                                              cells=args.cells)
+    for scenario in static + dynamic:
+        scenario.realtime_factor = args.realtime_factor
+    return static, dynamic
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--protocol',
+                        choices=['demo', 'static', 'dynamic', 'full', 'companions', 'none'],
+                        default='demo', help='none: only what the options below add; '
+                        'companions: --companions --outage --forged')
+    parser.add_argument('--out', default='out/evaluation', help='bags, logs and report')
+    parser.add_argument('--trials', type=int, default=10, help='static trials per point')
+    parser.add_argument('--observe-s', type=float, default=scenarios.STATIC_OBSERVE_S,
+                        help='static: simulated seconds observed before the result')
+    parser.add_argument('--speeds', type=int, nargs='+', default=[20, 40, 60, 80, 100, 120])
+    parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
+    parser.add_argument('--cells', type=int, default=6, help='dynamic: lamp cells per run')
+    parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
+    parser.add_argument('--lanes', type=int, default=2,
+                        help='scenarios run in parallel, each on a DDS domain of its own')
+    parser.add_argument('--spawn', choices=SPAWN_MODES, default='fork',
+                        help='fork: nodes forked from a preloaded fork server; exec: each '
+                             'node a new interpreter (as ros2 run)')
+    parser.add_argument('--realtime-factor', type=float, default=1.0,
+                        help='simulated seconds per wall second of every scenario (the '
+                             'highest: a lane slows down while nodes fall behind)')
+    parser.add_argument('--retries', type=int, default=1,
+                        help='runs again, slower, a scenario in which a node fell behind')
+    parser.add_argument('--replay-bag', action='append', default=[],
+                        help='also replay this sensor bag (e.g. bags/sample_80kmh) through the '
+                             'processing nodes with bag_player and score it (repeatable)')
+    parser.add_argument('--ablations', action='store_true',
+                        help='also run the reduced static + dynamic set once per ablation '
+                             'variant (evaluation/ablations.py) and add their table')
+    parser.add_argument('--ablation-trials', type=int, default=2,
+                        help='ablations: static trials per point')
+    parser.add_argument('--ablation-runs', type=int, default=2,
+                        help='ablations: dynamic runs per speed')
+    parser.add_argument('--companions', action='store_true',
+                        help='also run every positioning method (companion nodes and the '
+                             'photodiode beside the graph) on static and dynamic scenarios, '
+                             'straight and curved, and add their table (evaluation/companions.py)')
+    parser.add_argument('--companion-speeds', type=int, nargs='+',
+                        default=list(companions.SPEEDS_KMH), help='companions: straight speeds')
+    parser.add_argument('--companion-points', type=float, nargs='+',
+                        default=list(companions.STATIC_POINTS_M),
+                        help='companions: static points (m before the lamp; the first two '
+                             'also on the curve)')
+    parser.add_argument('--companion-curved-s', type=float, default=companions.CURVED_DURATION_S,
+                        help='companions: simulated seconds of the curved dynamic run (0: no '
+                             'curved scenarios)')
+    parser.add_argument('--outage', action='store_true',
+                        help='also run the lamp-outage scenario (every second lamp dark for '
+                             '200 m, then none for 500 m) and add its table')
+    parser.add_argument('--outage-speed', type=float, default=companions.OUTAGE_SPEED_KMH)
+    parser.add_argument('--outage-curved-speed', type=float,
+                        default=companions.CURVED_OUTAGE_SPEED_KMH,
+                        help='outage: speed of the curved_demo outage run with curvature_node '
+                             '(the re-acquisition aid), km/h; 0: no curved run')
+    parser.add_argument('--forged', action='store_true',
+                        help='also run the forged-lamp pair (clean, forged) and add its table')
+    parser.add_argument('--forged-speed', type=float, default=companions.FORGED_SPEED_KMH)
+    parser.add_argument('--companions-docs', nargs='+', default=[],
+                        help='also write the companion, outage and forged-lamp tables between '
+                             'the companions markers of these Markdown files')
+    parser.add_argument('--latency', action='store_true',
+                        help='also measure latency as on the train: record sensor bags at '
+                             f'{"/".join(map(str, LATENCY_SPEEDS_KMH))} km/h (kept in '
+                             'OUT/latency_bags), then replay each at real-time factor 1 '
+                             'through the processing nodes, one at a time, after everything '
+                             'else (the rig\'s renderer is not on the cores)')
+    parser.add_argument('--rescore', action='store_true',
+                        help='do not run the graph: score the bags already in --out again')
+    parser.add_argument('--readme', default='',
+                        help='also write the report between the evaluation markers of this '
+                             'Markdown file (figures copied beside it under docs/evaluation)')
+    args = parser.parse_args(argv)
+    command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
+    logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
+    out = pathlib.Path(args.out)
+    lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
+    static, dynamic = build_scenarios(args)
+    groups = {'static': static, 'dynamic': dynamic}
+    if args.replay_bag:
+        groups['replay'] = [scenarios.replay_scenario(bag, args.realtime_factor)
+                            for bag in args.replay_bag]
+    if args.protocol == 'companions':
+        args.companions = args.outage = args.forged = True
+    kinds = {}
+    if args.companions:
+        kinds['companions'] = companions.companion_scenarios(
+            points_m=tuple(args.companion_points), speeds_kmh=tuple(args.companion_speeds),
+            observe_s=args.observe_s, curved_duration_s=args.companion_curved_s,
+            curved=args.companion_curved_s > 0)
+    if args.outage:
+        kinds['outage'] = [companions.outage_scenario(out / 'outage', args.outage_speed)]
+        if args.outage_curved_speed > 0:
+            kinds['outage'].append(companions.curved_outage_scenario(
+                out / 'outage', args.outage_curved_speed))
+    if args.forged:
+        kinds['forged'] = companions.forged_scenarios(out / 'forged', args.forged_speed)
+    for group in kinds.values():
+        for scenario in group:
+            scenario.realtime_factor = args.realtime_factor
+    groups.update(kinds)
+    if args.ablations:
+        groups.update(ablations.ablation_groups(
+            trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
+            realtime_factor=args.realtime_factor))
+    total = sum(len(g) for g in groups.values())
+    started = time.monotonic()
+
+    def progress(done, _, name):
+        _progress(done, total, name, started)
+
+    try:
+        results = scenarios.run_protocols(groups, out, lamp_map, lanes=args.lanes,
+                                          spawn=args.spawn, progress=progress,
+                                          rescore=args.rescore, retries=args.retries)
+        latency_results = []
+        protocols_s = time.monotonic() - started
+        if args.latency:
+            # alone on the machine, at real time: no parallel lane, no slower rerun, a
+            # fresh lane each (a lane slows down after a run in which a node fell behind)
+            for scenario in latency_replays(out, args.rescore):
+                group = f'latency/{scenario.name}'
+                latency_results += scenarios.run_protocols(
+                    {group: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
+                    rescore=args.rescore, retries=0)[group]
+            total += len(latency_results)
+            if latency_results and not args.rescore:
+                report.append_latency_run(out, command, report.latency_table(latency_results)[1],
+                                          protocols_s if results else 0.0)
+    except KeyboardInterrupt:
+        print('\ninterrupted: the running scenarios were stopped', file=sys.stderr)
+        sys.stderr.flush()
+        sys.stdout.flush()
+        # Every node is stopped; skip the interpreter's teardown, in which rclpy's
+        # C++ signal-handler thread aborts after an interrupt.
+        os._exit(130)
+    replayed = list(results.get('replay') or []) + latency_results
+    static_results, dynamic_results = results.get('static', []), results.get('dynamic', [])
+    ablation = None
+    if args.ablations:
+        table, figures = ablations.ablation_table(results)
+        ablations.plot_ablations(figures, out / 'ablations.png')
+        ablation = (table, figures)
+    text = report.write_report(static_results, dynamic_results, out,
+                               title=(f'Accuracy ({args.protocol} protocol)'
+                                      if args.protocol not in ('none', 'companions')
+                                      else 'Evaluation'),
+                               ablations=ablation, replays=replayed)
+    if kinds:
+        added = companions.append_to_report(out, results.get('companions', ()),
+                                            results.get('outage', ()), results.get('forged', ()))
+        text += added
+        for path in args.companions_docs:
+            companions.update_docs(path, added, command)
+            print(f'{path}: companions section rewritten')
+    print(text)
+    print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
+    wall = time.monotonic() - started
+    if not args.rescore:
+        # which runs made the bags, and how long each took (the README quotes it)
+        with open(out / report.RUN_LOG, 'a', encoding='utf-8') as log:
+            log.write(json.dumps({'command': command, 'scenarios': total,
+                                  'lanes': args.lanes, 'wall_s': round(wall, 1),
+                                  'cpus': os.cpu_count(),
+                                  'finished': time.strftime('%Y-%m-%d %H:%M')}) + '\n')
+    if args.readme:
+        report.update_markdown(pathlib.Path(args.readme), out, command)
+        print(f'{args.readme}: evaluation section rewritten')
+    how = 'rescored' if args.rescore else f'on {args.lanes} lane(s)'
+    print(f'{total} scenarios {how}: total wall time {wall:.0f} s ({wall / 60:.1f} min)')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,565 @@
+"""Tables (Markdown), figures (PNG) and the JSON of every figure, from scored runs.
+
+The paper's figures (``shared/EVALUATION.md``) are printed beside ours; nothing here is
+typed in from a measurement: every number of ours comes from the results passed in.
+"""
+import json
+import math
+import pathlib
+import time
+
+import numpy as np
+
+from vlc_evaluation import identification, latency, metrics, scenarios
+
+PAPER_STATIC = {'max_cm': 29.73, 'min_cm': 2.68, 'mean_cm': 10.48, 'p90_cm': 20.0}
+PAPER_DYNAMIC = {20: {'max_cm': 32.09, 'mean_cm': 11.07, 'p75_cm': 18.0},
+                 40: {'max_cm': 33.05, 'mean_cm': 14.21, 'p75_cm': 19.0},
+                 60: {'max_cm': 34.25, 'mean_cm': 15.33, 'p75_cm': 22.0},
+                 80: {'max_cm': 34.75, 'mean_cm': 16.52, 'p75_cm': 23.0},
+                 100: {'max_cm': 36.11, 'mean_cm': 17.68, 'p75_cm': 23.5}}
+
+
+def _cm(value):
+    return '–' if value is None or not np.isfinite(value) else f'{100.0 * value:.2f}'
+
+
+def _paper(value):
+    return '–' if value is None else f'{value:.2f}'
+
+
+def _static_rows(label, errors, misses):
+    s = metrics.summarize(errors, misses=misses)
+    return s, (f'| {label} | {_cm(s.max_m)} | {_cm(s.mean_m)} | {_cm(s.min_m)} | '
+               f'{_cm(s.p90_m)} | {s.count} | {s.misses} |')
+
+
+def static_table(results):
+    """Markdown table of the static protocol, ours beside the paper's.
+
+    Rows: the published pose (the product), then the raw single-frame fixes of the same
+    trials (no filtering, :mod:`.raw_fix`): the paper's eq. 12–14 chain and this
+    project's track-constrained fix."""
+    rows = ['| static protocol | max (cm) | mean (cm) | min (cm) | 90th pct (cm) | results | '
+            'misses |', '|---|---|---|---|---|---|---|']
+    figures = {}
+
+    def add(key, label, errors, misses):
+        summary, row = _static_rows(label, errors, misses)
+        figures[key] = summary.as_dict()
+        rows.append(row)
+
+    add('ours', 'this project, published pose, Euclidean',
+        [r['error_m'] for r in results if r.get('error_m') is not None],
+        sum(1 for r in results if r.get('error_m') is None))
+    add('ours_along_track', 'this project, published pose, along track',
+        [abs(r['along_m']) for r in results if r.get('along_m') is not None],
+        sum(1 for r in results if r.get('along_m') is None))
+    for method, label in (('paper', 'raw single frame, paper eq. 12–14 + IMU attitude'),
+                          ('constrained', 'raw single frame, track-constrained fix')):
+        raw = [r['raw'][method] for r in results if r.get('raw')]
+        if not raw:
+            continue
+        add(f'raw_{method}', f'{label}, Euclidean',
+            [x['error_m'] for x in raw if x['error_m'] is not None],
+            sum(1 for x in raw if x['error_m'] is None))
+        add(f'raw_{method}_along_track', f'{label}, along track',
+            [abs(x['along_m']) for x in raw if x['along_m'] is not None],
+            sum(1 for x in raw if x['along_m'] is None))
+    rows.append(f'| paper (Acta Optica Sinica 2023) | {_paper(PAPER_STATIC["max_cm"])} | '
+                f'{_paper(PAPER_STATIC["mean_cm"])} | {_paper(PAPER_STATIC["min_cm"])} | '
+                f'< {_paper(PAPER_STATIC["p90_cm"])} | 200 | – |')
+    return '\n'.join(rows), figures
+
+
+def dynamic_table(results):
+    """Markdown table of the dynamic protocol per speed, ours beside the paper's."""
+    by_speed = {}
+    for r in results:
+        by_speed.setdefault(int(round(r['speed_kmh'])), []).append(r)
+    rows = ['| speed (km/h) | max (cm) | mean (cm) | 75th pct (cm) | 95th pct (cm) | '
+            'availability | paper max | paper mean | paper 75th |',
+            '|---|---|---|---|---|---|---|---|---|']
+    figures = {}
+    for v in sorted(by_speed):
+        pts = [p for r in by_speed[v] for p in r['points']]
+        errs = [p['error_m'] for p in pts if p['error_m'] is not None]
+        misses = sum(1 for p in pts if p['error_m'] is None)
+        s = metrics.summarize(errs, misses=misses)
+        avail = s.count / max(1, s.count + s.misses)
+        paper = PAPER_DYNAMIC.get(v, {})
+        rows.append(f'| {v} | {_cm(s.max_m)} | {_cm(s.mean_m)} | {_cm(s.p75_m)} | '
+                    f'{_cm(s.p95_m)} | {100 * avail:.1f} % | {_paper(paper.get("max_cm"))} | '
+                    f'{_paper(paper.get("mean_cm"))} | {_paper(paper.get("p75_cm"))} |')
+        figures[v] = {'test_points': s.as_dict(), 'availability': avail}
+    return '\n'.join(rows), figures
+
+
+def plot_static(results, path):
+    """Error against distance to the lamp (like paper Fig. 11)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    pts = [(r['point_m'], 100 * r['error_m']) for r in results if r.get('error_m') is not None]
+    miss = sorted({r['point_m'] for r in results if r.get('error_m') is None})
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for method, marker, label in (('paper', 'x', 'raw single frame, paper eq. 12–14'),
+                                  ('constrained', '+', 'raw single frame, constrained fix')):
+        raw = [(r['point_m'], 100 * r['raw'][method]['error_m']) for r in results
+               if r.get('raw') and r['raw'][method]['error_m'] is not None]
+        if raw:
+            d, e = np.array(raw).T
+            ax.plot(d + (0.08 if method == 'paper' else -0.08), e, marker, color='0.55',
+                    alpha=0.6, label=label)
+    if pts:
+        d, e = np.array(pts).T
+        ax.plot(d, e, 'o', alpha=0.5, label='this project, published pose (each trial)')
+        for x in np.unique(d):
+            ax.plot(x, e[d == x].max(), 'k_', markersize=12)
+    for x in miss:
+        ax.axvline(x, color='r', alpha=0.2)
+    ax.axhline(PAPER_STATIC['max_cm'], color='C3', ls='--', label='paper max 29.73 cm')
+    ax.axhline(PAPER_STATIC['mean_cm'], color='C1', ls=':', label='paper mean 10.48 cm')
+    ax.set_xlabel('distance to the lamp (m)')
+    ax.set_ylabel('position error (cm)')
+    ax.set_title('Static protocol: error against distance to the lamp (red: misses)')
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_dynamic(results, path):
+    """Error distributions per speed (like paper Fig. 15)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    by_speed = {}
+    for r in results:
+        by_speed.setdefault(int(round(r['speed_kmh'])), []).extend(
+            100 * p['error_m'] for p in r['points'] if p['error_m'] is not None)
+    speeds = sorted(by_speed)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    if speeds:
+        ax.boxplot([by_speed[v] or [np.nan] for v in speeds], whis=(0, 100))
+        ax.set_xticks(range(1, len(speeds) + 1), [str(v) for v in speeds])
+        paper = [PAPER_DYNAMIC.get(v, {}).get('max_cm', np.nan) for v in speeds]
+        ax.plot(range(1, len(speeds) + 1), paper, 'r^--', label='paper max')
+    ax.set_xlabel('speed (km/h)')
+    ax.set_ylabel('position error at the test points (cm)')
+    ax.set_title('Dynamic protocol: error distribution per speed')
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _by_speed(results):
+    by_speed = {}
+    for r in results:
+        by_speed.setdefault(int(round(r['speed_kmh'])), []).append(r)
+    return dict(sorted(by_speed.items()))
+
+
+def _finite(value):
+    return float(value) if np.isfinite(value) else None
+
+
+def _fmt(value, digits=2, scale=1.0):
+    return '–' if value is None or not np.isfinite(value) else f'{scale * value:.{digits}f}'
+
+
+def dynamic_detail_table(results):
+    """Per speed: every published pose, the covariance bound, heading compensation."""
+    rows = ['| speed (km/h) | every pose: max (cm) | mean (cm) | poses within 3σ | heading '
+            'before (deg) | heading after: max abs (deg) | rms (deg) | cold start: heading '
+            f'within {scenarios.HEADING_BOUND_DEG:g}° from the first pose on, after (s): '
+            'median / max |',
+            '|---|---|---|---|---|---|---|---|']
+    figures = {}
+    for v, runs in _by_speed(results).items():
+        maxes = [r['every_pose']['max_m'] for r in runs if r.get('every_pose')]
+        means = [r['every_pose']['mean_m'] for r in runs if r.get('every_pose')]
+        counts = [r['every_pose']['count'] for r in runs if r.get('every_pose')]
+        cov = [r['covariance_3sigma_fraction'] for r in runs
+               if r.get('covariance_3sigma_fraction') is not None]
+        before = [r['heading_before_deg'] for r in runs if r.get('heading_before_deg')]
+        after = [r['heading_after_deg'] for r in runs if r.get('heading_after_deg')]
+        settling = [r.get('heading_settling_s') for r in runs if 'heading_settling_s' in r]
+        never = sum(x is None for x in settling)
+        settled = [x for x in settling if x is not None]
+        fig = {
+            'every_pose_max_m': float(np.max(maxes)) if maxes else None,
+            'every_pose_mean_m': (float(np.average(means, weights=counts))
+                                  if means and sum(counts) else None),
+            'covariance_3sigma_fraction': float(np.mean(cov)) if cov else None,
+            'heading_before_min_deg': min(b['min'] for b in before) if before else None,
+            'heading_before_max_deg': max(b['max'] for b in before) if before else None,
+            'heading_after_max_abs_deg': max(a['max_abs'] for a in after) if after else None,
+            'heading_after_rms_deg': (float(np.sqrt(np.mean([a['rms'] ** 2 for a in after])))
+                                      if after else None),
+            # a run whose heading was not within the bound at its end counts as longest
+            'heading_settling_median_s': (_finite(np.median(settled + [math.inf] * never))
+                                          if settling else None),
+            'heading_settling_max_s': float(np.max(settled)) if settled and not never else None,
+            'heading_not_settled_runs': never}
+        figures[v] = fig
+        settling_max = (_fmt(fig['heading_settling_max_s'], 2) if not never
+                        else f'{never} run(s) not within it at the end')
+        before_txt = (f'{fig["heading_before_min_deg"]:+.2f} … '
+                      f'{fig["heading_before_max_deg"]:+.2f}' if before else '–')
+        rows.append(f'| {v} | {_cm(fig["every_pose_max_m"])} | {_cm(fig["every_pose_mean_m"])} | '
+                    f'{_fmt(fig["covariance_3sigma_fraction"], 1, 100)} % | {before_txt} | '
+                    f'{_fmt(fig["heading_after_max_abs_deg"], 3)} | '
+                    f'{_fmt(fig["heading_after_rms_deg"], 3)} | '
+                    f'{_fmt(fig["heading_settling_median_s"], 2)} / {settling_max} |')
+    return '\n'.join(rows), figures
+
+
+def identification_table(results):
+    """Lamp identification per speed (decoder output against the rig's true spots)."""
+    rows = ['| speed (km/h) | lamps in view | identified | lamps passed (seen closer than '
+            f'{identification.PASSED_WITHIN_M:g} m) | passed and identified | first '
+            'confirmation: median (m before the lamp) | min (m) | identified frames | wrong '
+            'UIDs accepted | anomalies |', '|---|---|---|---|---|---|---|---|---|---|']
+    dist_rows = ['| speed (km/h) | ' + ' | '.join(f'{lo}–{lo + 1} m' for lo in range(10))
+                 + ' |', '|---|' + '---|' * 10]
+    figures = {}
+    for v, runs in _by_speed(results).items():
+        ids = [r['identification'] for r in runs if r.get('identification')]
+        if not ids:
+            continue
+        first = [d for i in ids for d in i['first_confirmation_m'].values()]
+        confirmed = [d for d in first if d is not None]
+        frames = [f for i in ids for f in i['frames']]
+        wrong = sum(i['wrong_uids'] for i in ids)
+        anomalies = sum(i['anomalies'] for i in ids)
+        passed = [identification.passed_lamps(i['frames'], i['first_confirmation_m'])
+                  for i in ids]
+        bins = identification.success_by_distance(frames)
+        frame_rate = float(np.mean([f[3] for f in frames])) if frames else None
+        fig = {'lamps_in_view': len(first), 'lamps_identified': len(confirmed),
+               'lamps_passed': sum(p for p, _ in passed),
+               'lamps_passed_identified': sum(i for _, i in passed),
+               'first_confirmation_median_m': float(np.median(confirmed)) if confirmed else None,
+               'first_confirmation_min_m': float(np.min(confirmed)) if confirmed else None,
+               'identified_frame_rate': frame_rate, 'wrong_uids_accepted': wrong,
+               'anomalies': anomalies, 'by_distance': bins}
+        figures[v] = fig
+        rows.append(f'| {v} | {fig["lamps_in_view"]} | {fig["lamps_identified"]} | '
+                    f'{fig["lamps_passed"]} | {fig["lamps_passed_identified"]} | '
+                    f'{_fmt(fig["first_confirmation_median_m"])} | '
+                    f'{_fmt(fig["first_confirmation_min_m"])} | '
+                    f'{_fmt(frame_rate, 1, 100)} % | {wrong} | {anomalies} |')
+        dist_rows.append(f'| {v} | ' + ' | '.join(
+            '–' if b['identified'] is None else f'{100 * b["identified"]:.0f} %'
+            for b in bins) + ' |')
+    return '\n'.join(rows), '\n'.join(dist_rows), figures
+
+
+LATENCY_ROWS = (('vlc_decoder', 'decoder', 'frame complete → vlc/lamps sent'),
+                ('spot_locator', 'spot_locator', 'frame complete → spots/pairs sent'),
+                ('train_localizer', 'localizer', 'later input sent → train/pose sent'),
+                ('imu_compensator', 'imu_compensator', 'imu/data_raw sent → imu/data sent'),
+                ('end to end', 'exposure_to_pose', 'spot exposure → train/pose sent'))
+
+
+def latency_table(results):
+    """Per node latency (receive log) and self-reported processing time.
+
+    Latency means wall time, so only runs at a real-time factor of 1 count when there
+    are any (a slowed-down run gives each node more time per frame)."""
+    realtime = [r for r in results if r.get('scenario', {}).get('realtime_factor', 1.0) == 1.0]
+    used = realtime or list(results)
+    rows = ['| node | measured | median (ms) | p99 (ms) | max (ms) | samples | processing per '
+            'frame, node-reported: median / max (ms) |', '|---|---|---|---|---|---|---|']
+    figures = {'runs': len(used), 'realtime_only': bool(realtime)}
+    for node, key, what in LATENCY_ROWS:
+        samples = [x for r in used for x in r.get('latency_ms', {}).get(key, [])]
+        lat = latency.summarize_ms(samples)
+        proc = [r['processing_ms'].get(node) for r in used
+                if r.get('processing_ms') and r['processing_ms'].get(node)]
+        med = [p[0] for p in proc if p[0] is not None]
+        top = [p[1] for p in proc if p[1] is not None]
+        figures[key] = dict(lat, processing_median_ms=float(np.median(med)) if med else None,
+                            processing_max_ms=float(np.max(top)) if top else None)
+        proc_txt = (f'{np.median(med):.2f} / {np.max(top):.2f}' if med and top else '–')
+        rows.append(f'| {node} | {what} | {_fmt(lat["median_ms"])} | {_fmt(lat["p99_ms"])} | '
+                    f'{_fmt(lat["max_ms"])} | {lat["count"]} | {proc_txt} |')
+    note = (f'{len(used)} runs' + (' at real-time factor 1' if realtime else
+                                   ' (none at real-time factor 1: wall times of slowed runs)'))
+    return '\n'.join(rows) + f'\n\nLatency over {note}.', figures
+
+
+LATENCY_LOG = 'latency_runs.jsonl'
+
+
+def append_latency_run(out_dir, command, figures, after_s):
+    """Append one latency-replay run's end-to-end and processing figures (the
+    ``figures`` of :func:`latency_table`) to ``out_dir/latency_runs.jsonl``; ``after_s``:
+    wall seconds the same command had run the graph before the replays (the protocols)."""
+    e2e = figures.get('exposure_to_pose', {})
+    entry = {'finished': time.strftime('%Y-%m-%d %H:%M'), 'command': command,
+             'after_min': round(after_s / 60.0, 1), 'samples': e2e.get('count', 0),
+             'median_ms': e2e.get('median_ms'), 'p99_ms': e2e.get('p99_ms'),
+             'max_ms': e2e.get('max_ms')}
+    for key in ('decoder', 'spot_locator', 'localizer'):
+        entry[f'{key}_processing_ms'] = figures.get(key, {}).get('processing_median_ms')
+    with open(pathlib.Path(out_dir) / LATENCY_LOG, 'a', encoding='utf-8') as log:
+        log.write(json.dumps(entry) + '\n')
+
+
+def latency_runs_table(out_dir):
+    """Every latency-replay run logged in ``out_dir`` (Markdown, '' if none), oldest
+    first, and their entries: the spread of one machine's moments on the same code."""
+    path = pathlib.Path(out_dir) / LATENCY_LOG
+    if not path.exists():
+        return '', []
+    runs = [json.loads(line) for line in path.read_text(encoding='utf-8').splitlines()
+            if line.strip()]
+    rows = ['| finished | command | after the protocols (min) | samples | end to end median '
+            '/ p99 / max (ms) | processing median: decoder / spot locator / localizer (ms) |',
+            '|---|---|---|---|---|---|']
+    for r in runs:
+        rows.append(f'| {r["finished"]} | `{r["command"]}` | {r["after_min"]:.1f} | '
+                    f'{r["samples"]} | {_fmt(r["median_ms"])} / {_fmt(r["p99_ms"])} / '
+                    f'{_fmt(r["max_ms"])} | {_fmt(r["decoder_processing_ms"])} / '
+                    f'{_fmt(r["spot_locator_processing_ms"])} / '
+                    f'{_fmt(r["localizer_processing_ms"])} |')
+    return '\n'.join(rows), runs
+
+
+def health_summary(results):
+    """How the runs went: reruns, real-time factors, runs still degraded."""
+    flagged = [r for r in results if r.get('health', {}).get('degraded')]
+    lag = max([r['health']['camera_lag_max_s'] for r in results if r.get('health')],
+              default=0.0)
+    rtf = [r['scenario']['realtime_factor'] for r in results if 'scenario' in r]
+    reruns = sum(r.get('attempts', 1) - 1 for r in results)
+    text = (f'Graph health: {len(results)} runs, {reruns} rerun(s) because a node fell '
+            f'behind; real-time factor {min(rtf, default=1):.2f}–{max(rtf, default=1):.2f}; '
+            f'{len(flagged)} kept run(s) still had a node falling behind (camera lag > 0.1 s, '
+            f'dropped frames or IMU samples; largest camera lag {lag:.2f} s).')
+    return text, {'runs': len(results), 'reruns': reruns, 'degraded_runs': len(flagged),
+                  'camera_lag_max_s': lag,
+                  'realtime_factor_min': min(rtf, default=None),
+                  'realtime_factor_max': max(rtf, default=None),
+                  'degraded': [r['scenario']['name'] for r in flagged if 'scenario' in r]}
+
+
+PHASES = (('start', None, 'started'), ('ready', 'started', 'ready'),
+          ('gate', 'ready', 'sim_started'), ('simulated run', 'sim_started', 'camera_done'),
+          ('drain', 'camera_done', 'drained'), ('stop', 'drained', 'stopped'))
+
+
+def timing_summary(results):
+    """Where the wall time of a run goes (median per phase, s) and each node's CPU
+    (median, s), over the kept attempts of ``results``."""
+    timings = [r['timing'] for r in results if r.get('timing', {}).get('stopped')]
+    if not timings:
+        return '', {}
+    phases = {}
+    for name, start, end in PHASES:
+        d = [t[end] - (t[start] if start else 0.0) for t in timings if end in t
+             and (start is None or start in t)]
+        phases[name] = float(np.median(d)) if d else None
+    phases['score'] = float(np.median([t.get('score_s', 0.0) for t in timings]))
+    cpu = {}
+    for t in timings:
+        for node, seconds in t.get('cpu_s', {}).items():
+            cpu.setdefault(node, []).append(seconds)
+    cpu = {node: float(np.median(v)) for node, v in sorted(cpu.items())}
+    text = ('Wall time per run (median, s): ' + ', '.join(
+        f'{k} {v:.2f}' for k, v in phases.items() if v is not None)
+        + (f'. CPU per run (median, s): {sum(cpu.values()):.2f} = ' + ', '.join(
+            f'{k} {v:.2f}' for k, v in cpu.items()) if cpu else '') + '.')
+    return text, {'phases_s': phases, 'cpu_s': cpu, 'runs': len(timings)}
+
+
+def plot_heading(results, path):
+    """Heading error before and after IMU compensation over one run (like paper Fig. 13a)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    series = [r for r in results if r.get('heading_series', {}).get('t_s')]
+    if not series:
+        return False
+    run = min(series, key=lambda r: r['speed_kmh'])
+    h = run['heading_series']
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(h['t_s'], h['before_deg'], color='C3', lw=1,
+            label='before: platform heading vs track (uncompensated)')
+    ax.plot(h['t_s'], h['after_deg'], color='C0', lw=1.2,
+            label='after: compensated heading − true heading')
+    ax.axhline(0.5, color='k', ls=':', lw=0.8, label='paper after: < 0.5°')
+    ax.axhline(-0.5, color='k', ls=':', lw=0.8)
+    ax.set_xlabel('time (s)')
+    ax.set_ylabel('heading error (deg)')
+    ax.set_title(f'Heading before and after IMU compensation, {run["speed_kmh"]:.0f} km/h '
+                 f'(seed {run["seed"]})')
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def compact(result):
+    """A scenario result without its per-frame arrays (for report.json)."""
+    out = {k: v for k, v in result.items()
+           if k not in ('latency_ms', 'heading_series', 'identification')}
+    if result.get('latency_ms'):
+        out['latency_ms'] = {k: latency.summarize_ms(v) for k, v in result['latency_ms'].items()}
+    if result.get('identification'):
+        ident = result['identification']
+        out['identification'] = {k: v for k, v in ident.items() if k != 'frames'}
+    return out
+
+
+# One line per graph run into a report folder (command, scenarios, wall time): run_evaluation
+RUN_LOG = 'runs.jsonl'
+FIGURES = ('static_error_vs_distance.png', 'dynamic_error_per_speed.png',
+           'heading_compensation.png', 'ablations.png')
+
+
+def replay_table(results):
+    """Sensor bags replayed through the processing nodes (bag_player instead of the rig)."""
+    rows = ['| replayed bag | poses | first pose after (s) | every pose after it: max (cm) | '
+            'mean (cm) | 95th pct (cm) | lamps identified / in view | wrong UIDs accepted |',
+            '|---|---|---|---|---|---|---|---|']
+    figures = {}
+    for r in results:
+        every = r.get('every_pose') or {}
+        ident = r.get('identification') or {}
+        first = ident.get('first_confirmation_m', {})
+        fig = {'poses': r['poses'], 'first_pose_s': r.get('first_pose_s'),
+               'every_pose': every or None,
+               'lamps_identified': sum(v is not None for v in first.values()),
+               'lamps_in_view': len(first), 'wrong_uids': ident.get('wrong_uids')}
+        figures[r['bag']] = fig
+        rows.append(f'| `{r["bag"]}` | {r["poses"]} | {_fmt(r.get("first_pose_s"))} | '
+                    f'{_cm(every.get("max_m"))} | {_cm(every.get("mean_m"))} | '
+                    f'{_cm(every.get("p95_m"))} | {fig["lamps_identified"]} / '
+                    f'{fig["lamps_in_view"]} | {fig["wrong_uids"]} |')
+    return '\n'.join(rows), figures
+
+
+def write_report(static_results, dynamic_results, out_dir, title='Accuracy', ablations=None,
+                 replays=None):
+    """Write ``report.md``, ``report.json`` and PNGs into ``out_dir``; returns the text.
+
+    ``ablations``: optional ``(markdown, figures)`` of :mod:`.ablations`; ``replays``:
+    results of replayed sensor bags."""
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    parts, figures = [f'## {title}'], {}
+    everything = list(static_results) + list(dynamic_results) + list(replays or [])
+    if static_results:
+        table, figures['static'] = static_table(static_results)
+        plot_static(static_results, out_dir / 'static_error_vs_distance.png')
+        observe = sorted({r['scenario']['observe_s'] for r in static_results
+                          if 'scenario' in r})
+        parts += ['', '### Static protocol', '',
+                  f'The train stands 10.0, 9.5, … 0.5 m before a lamp; the result of a trial '
+                  f'is the last pose published after {", ".join(f"{o:g}" for o in observe)} s '
+                  f'of simulated time (none: a miss). Raw rows: the same trials without any '
+                  f'filtering — each recorded `spots/pairs` pair whose spot the decoder '
+                  f'confirmed in that frame, triangulated (eq. 12) and placed in the map by the '
+                  f'localizer core with the `imu/data` attitude; the trial\'s last frame.',
+                  '', table, '', '![static](static_error_vs_distance.png)']
+    if dynamic_results:
+        table, figures['dynamic'] = dynamic_table(dynamic_results)
+        plot_dynamic(dynamic_results, out_dir / 'dynamic_error_per_speed.png')
+        parts += ['', '### Dynamic protocol (errors at the test points)', '', table, '',
+                  '![dynamic](dynamic_error_per_speed.png)']
+        table, figures['dynamic_detail'] = dynamic_detail_table(dynamic_results)
+        parts += ['', '### Every published pose, covariance bound, heading compensation', '',
+                  table]
+        if plot_heading(dynamic_results, out_dir / 'heading_compensation.png'):
+            parts += ['', '![heading](heading_compensation.png)']
+        table, by_dist, figures['identification'] = identification_table(dynamic_results)
+        parts += ['', '### Lamp identification', '', table, '',
+                  'Frames with the lamp identified (its own confirmed UID) by along-track '
+                  'distance to the lamp:', '', by_dist]
+    live = list(static_results) + list(dynamic_results)
+    if live:
+        table, figures['latency'] = latency_table(live)
+        parts += ['', '### Latency', '', table]
+    if replays:
+        # The on-train case: sensors arrive from a player (frames a readout after their
+        # stamp, as from the camera), the cores run only the processing nodes and the
+        # recorder, not the rig's renderer.
+        table, figures['latency_replay'] = latency_table(replays)
+        parts += ['', '### Latency, sensor bags replayed through the processing nodes', '',
+                  table]
+        runs, figures['latency_runs'] = latency_runs_table(out_dir)
+        if runs:
+            parts += ['', 'Every latency replay run into this output folder (the table above '
+                      'is the last one; the same code and bags, the machine at different '
+                      'moments):', '', runs]
+    if everything:
+        text, figures['health'] = health_summary(everything)
+        parts += ['', text]
+        text, figures['timing'] = timing_summary(everything)
+        if text:
+            parts += ['', text]
+    if replays:
+        table, figures['replay'] = replay_table(replays)
+        parts += ['', '### Replayed sensor bag', '', table]
+    if ablations is not None:
+        table, figures['ablations'] = ablations
+        parts += ['', '### Ablations', '', table]
+        if (out_dir / 'ablations.png').exists():
+            parts += ['', '![ablations](ablations.png)']
+    text = '\n'.join(parts) + '\n'
+    (out_dir / 'report.md').write_text(text, encoding='utf-8')
+    (out_dir / 'report.json').write_text(json.dumps(
+        {'figures': figures, 'static': [compact(r) for r in static_results],
+         'dynamic': [compact(r) for r in dynamic_results],
+         'replay': [compact(r) for r in replays or []]},
+        indent=1, default=float), encoding='utf-8')
+    return text
+
+
+BEGIN_MARK = '<!-- evaluation:begin (generated by run_evaluation --readme; do not edit) -->'
+END_MARK = '<!-- evaluation:end -->'
+
+
+def update_markdown(markdown_path, report_dir, command):
+    """Put ``report_dir/report.md`` between the evaluation markers of ``markdown_path``.
+
+    The report's PNGs and JSON are copied to ``docs/evaluation/`` beside the Markdown
+    file and the image links rewritten to point there; the command line that produced
+    the figures is written above them.
+    """
+    import shutil
+    markdown_path = pathlib.Path(markdown_path)
+    report_dir = pathlib.Path(report_dir)
+    target = markdown_path.parent / 'docs' / 'evaluation'
+    target.mkdir(parents=True, exist_ok=True)
+    body = (report_dir / 'report.md').read_text(encoding='utf-8')
+    for name in ('report.json',) + FIGURES:
+        if (report_dir / name).exists():
+            shutil.copy(report_dir / name, target / name)
+            body = body.replace(f']({name})', f'](docs/evaluation/{name})')
+    runs = ''
+    if (report_dir / RUN_LOG).exists():
+        lines = [json.loads(line) for line in
+                 (report_dir / RUN_LOG).read_text(encoding='utf-8').splitlines() if line]
+        runs = 'The bags were recorded by:\n\n' + ''.join(
+            f'- `{r["command"]}`: {r["scenarios"]} scenarios on {r["lanes"]} lane(s), '
+            f'{r["wall_s"] / 60:.1f} min wall time ({r["cpus"]} cores, {r["finished"]})\n'
+            for r in lines) + '\n'
+    section = (f'{BEGIN_MARK}\nGenerated by `{command}` (all figures in '
+               f'`docs/evaluation/report.json`).\n\n{runs}{body}{END_MARK}')
+    text = markdown_path.read_text(encoding='utf-8')
+    if BEGIN_MARK in text and END_MARK in text:
+        head, rest = text.split(BEGIN_MARK, 1)
+        _, tail = rest.split(END_MARK, 1)
+        text = head + section + tail
+    else:
+        text = text.rstrip('\n') + '\n\n' + section + '\n'
+    markdown_path.write_text(text, encoding='utf-8')
