@@ -1,5 +1,6 @@
 """The camera timing every node assumes must be the camera's: one value per key across
-the shipped parameter files (a mismatch mis-stamps spots or misreads chips)."""
+the shipped parameter files (a mismatch mis-stamps spots or misreads chips).
+"""
 import pathlib
 
 import pytest

@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Sub-pixel lamp spot centres in both stereo images (gray centroid, ellipse fit, circularity fusion, Wiener deblurring).',
+    description=('Sub-pixel lamp spot centres in both stereo images (gray centroid, ellipse fit, '
+                 'circularity fusion, Wiener deblurring).'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

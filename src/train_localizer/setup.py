@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Stereo triangulation, Kalman fusion with the IMU along the track, integrity checks; publishes the train position.',
+    description=('Stereo triangulation, Kalman fusion with the IMU along the track, integrity '
+                 'checks; publishes the train position.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='rosbag2 recorder and player without the ros2 CLI, built on the rosbags library, with a split writer that survives SIGKILL.',
+    description=('rosbag2 recorder and player without the ros2 CLI, built on the rosbags library, '
+                 'with a split writer that survives SIGKILL.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

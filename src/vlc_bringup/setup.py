@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Launch file of the whole VLC positioning graph: the synthetic rig (or a bag) and the processing nodes.',
+    description=('Launch file of the whole VLC positioning graph: the synthetic rig (or a bag) and'
+                 ' the processing nodes.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Foundation of the VLC positioning graph: lamp map, VLC protocol and CRC, camera model, rotations, optical channel, records, ROS process conventions, parameters, point clouds, polled subscriptions, throttled warnings.',
+    description=('Foundation of the VLC positioning graph: lamp map, VLC protocol and CRC, camera '
+                 'model, rotations, optical channel, records, ROS process conventions, parameters,'
+                 ' point clouds, polled subscriptions, throttled warnings.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='VLC stripe decoder: lamp spots to CRC-checked UIDs and lamp-map positions, tracked over frames.',
+    description=('VLC stripe decoder: lamp spots to CRC-checked UIDs and lamp-map positions, '
+                 'tracked over frames.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -1,4 +1,3 @@
-from glob import glob
 
 from setuptools import find_packages, setup
 
@@ -16,7 +15,9 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Evaluation of the VLC positioning graph against ground truth: graph runner, paper protocols, scoring, report, ablations, companion scenarios, benchmarks, doc writers, offline replays.',
+    description=('Evaluation of the VLC positioning graph against ground truth: graph runner, '
+                 'paper protocols, scoring, report, ablations, companion scenarios, benchmarks, '
+                 'doc writers, offline replays.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

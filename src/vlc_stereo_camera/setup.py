@@ -17,7 +17,8 @@ setup(
     zip_safe=True,
     maintainer='VLC train positioning team',
     maintainer_email='dev@vlc-train-positioning.invalid',
-    description='Synthetic tunnel rig: lamp world, train motion and vibration, rolling-shutter stereo VLC renderer, ADIS16488 IMU model, ground truth.',
+    description=('Synthetic tunnel rig: lamp world, train motion and vibration, rolling-shutter '
+                 'stereo VLC renderer, ADIS16488 IMU model, ground truth.'),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -12,11 +12,14 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 
-from train_localizer.conversions import (imu_from_msg, intrinsics_from_camera_info,  # noqa: F401
-                                         ns_to_stamp, stamp_to_ns)
-from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
-
 from companion_localizers.core.rssi import LampReading
+from train_localizer.conversions import (  # noqa: F401
+    imu_from_msg,
+    intrinsics_from_camera_info,
+    ns_to_stamp,
+    stamp_to_ns,
+)
+from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 
 RSSI_FIELDS = ('uid', 'power_w')
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')

@@ -44,22 +44,26 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterType
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rcl_interfaces.msg import ParameterType
 from sensor_msgs.msg import Imu
 
+from companion_localizers import conversions
+from companion_localizers.core.curvature import (
+    STATUS_NO_SIGNAL,
+    STATUS_OK,
+    STATUS_TOO_SHORT,
+    CurvatureConfig,
+    CurvatureLocalizer,
+)
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.process import spin_until_shutdown
-
-from companion_localizers import conversions
-from companion_localizers.core.curvature import (STATUS_NO_SIGNAL, STATUS_OK, STATUS_TOO_SHORT, CurvatureConfig,
-                             CurvatureLocalizer)
 
 EXIT_INVALID_CONFIG = 2
 _STR = ParameterType.PARAMETER_STRING
@@ -153,7 +157,8 @@ class CurvatureNodeConfig:
 
 def declare_and_read(node):
     """Declare every parameter on ``node``; return a CurvatureNodeConfig (ValueError if
-    inconsistent)."""
+    inconsistent).
+    """
     for name, default, descriptor in NODE_PARAMETERS:
         node.declare_parameter(name, default, descriptor)
     for name, descriptor in CORE_PARAMETERS:

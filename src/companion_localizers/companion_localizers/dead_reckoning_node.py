@@ -13,13 +13,14 @@ Parameters: ``config/dead_reckoning_node.yaml``.
 """
 import sys
 
-
-from vlc_common.parameters import descriptor as _desc
-
-from companion_localizers.node_main import run_node
-from companion_localizers.core.dead_reckoning import DeadReckoning, DeadReckoningConfig, ImageStillConfig
+from companion_localizers.core.dead_reckoning import (
+    DeadReckoning,
+    DeadReckoningConfig,
+    ImageStillConfig,
+)
 from companion_localizers.frame_node import ImuFrameNode, common_config_kwargs
-
+from companion_localizers.node_main import run_node
+from vlc_common.parameters import descriptor as _desc
 
 
 class DeadReckoningNode(ImuFrameNode):

@@ -21,6 +21,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
+from companion_localizers import conversions
+from companion_localizers.core.along_track import FilterSettings
+from companion_localizers.core.ranging import RangingConfig
 from train_localizer.core.fix import RigGeometry
 from train_localizer.core.join import FrameJoiner, JoinConfig
 from train_localizer.core.kalman import KalmanConfig
@@ -28,10 +31,6 @@ from train_localizer.core.standstill import StandstillConfig
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
-
-from companion_localizers import conversions
-from companion_localizers.core.along_track import FilterSettings
-from companion_localizers.core.ranging import RangingConfig
 
 _RIG = StereoRig()
 _DEG = math.pi / 180.0
@@ -167,7 +166,8 @@ def common_config_kwargs(p):
 
 class ImuFrameNode(Node):
     """See the module docstring. Subclasses set ``METHOD`` and implement
-    :meth:`make_core` and :meth:`extra_diagnostics`."""
+    :meth:`make_core` and :meth:`extra_diagnostics`.
+    """
 
     METHOD = ''
     EXTRA_PARAMETERS = ()

@@ -6,6 +6,7 @@ nodes); SIGINT or an external shutdown ends it with 0.
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
+
 from vlc_common.process import spin_until_shutdown
 
 #: Exit code of an invalid configuration.

@@ -21,7 +21,8 @@ its stamp; then it is solved with the attitude extrapolated up to 50 ms, or with
 identity and the vibration's attitude uncertainty (warned). The roll and pitch of
 ``imu/data`` are fused with the level track's (``tilt_prior_sigma_deg``,
 :mod:`companion_localizers.core.attitude_prior`). The train speed for the
-integration-window correction is the difference of the last two accepted fixes. Bad input (unknown UID, NaN power, missing
+integration-window correction is the difference of the last two accepted fixes. Bad input
+(unknown UID, NaN power, missing
 fields, out-of-order stamps) is skipped with a throttled warning. Parameters:
 ``config/rssi_localizer_node.yaml``; the channel keys (``pd_*``, ``lamp_*``) must equal
 ``photodiode_node``'s. Core: :mod:`companion_localizers.core.rssi`.
@@ -32,23 +33,21 @@ import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu, PointCloud2
 
-import numpy as np
-
-from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from vlc_common.core.rotations import quat_to_matrix
-from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_common.parameters import descriptor as _desc
-from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
-
-from companion_localizers.node_main import run_node
 from companion_localizers import conversions
 from companion_localizers.core.attitude_prior import fuse_tilt
 from companion_localizers.core.rssi import SOLVE_MODES, RssiConfig, trilaterate
+from companion_localizers.node_main import run_node
+from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.rotations import quat_to_matrix
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
 
 NS_PER_S = 1_000_000_000
 #: Level values of diagnostic_msgs/DiagnosticStatus.

@@ -1,8 +1,11 @@
 """Beacon-sequence plausibility (core/beacon_sequence.py): monotonic IDs, distance travelled."""
 import pytest
 
-from companion_localizers.core.beacon_sequence import (BeaconSequenceChecker,
-                                                       BeaconSequenceConfig, Verdict)
+from companion_localizers.core.beacon_sequence import (
+    BeaconSequenceChecker,
+    BeaconSequenceConfig,
+    Verdict,
+)
 from vlc_common.core.lamp_map import straight_tunnel_map
 
 LAMPS = straight_tunnel_map()      # lamp_id k at chainage 10·k m, UID 0x1000 | k
@@ -14,7 +17,8 @@ def uid(k):
 
 def sight(checker, k, train_x, ahead=None, odometer_offset=100.0, var=0.0):
     """A sighting of lamp k from a train at chainage train_x, seen ``ahead`` m ahead (the
-    true distance by default); the odometer has its own origin."""
+    true distance by default); the odometer has its own origin.
+    """
     ahead = 10.0 * k - train_x if ahead is None else ahead
     return checker.check(uid(k), train_x + odometer_offset, var, ahead, 1e-4)
 

@@ -1,18 +1,26 @@
 """Curvature-array correlation (companion method 4): core, scoring and bag reading.
 
 Synthetic inputs: the yaw rate κ(s(t))·v of a train on a known alignment plus seeded
-noise, bias and a vibration-like yaw oscillation; every test scores against the truth. Runs on the rig's IMU model: vlc_evaluation's
-test_curvature_benchmark.py.
+noise, bias and a vibration-like yaw oscillation; every test scores against the truth.
+Runs on the rig's IMU model: vlc_evaluation's test_curvature_benchmark.py.
 """
 import math
 
 import numpy as np
 import pytest
 
-from companion_localizers.core.curvature import (STATUS_AMBIGUOUS, STATUS_NO_SIGNAL,
-                                                 STATUS_OK, STATUS_TOO_SHORT, CurvatureArray,
-                                                 CurvatureConfig, CurvatureLocalizer,
-                                                 CurvatureTemplate, chainage_sigma, match)
+from companion_localizers.core.curvature import (
+    STATUS_AMBIGUOUS,
+    STATUS_NO_SIGNAL,
+    STATUS_OK,
+    STATUS_TOO_SHORT,
+    CurvatureArray,
+    CurvatureConfig,
+    CurvatureLocalizer,
+    CurvatureTemplate,
+    chainage_sigma,
+    match,
+)
 from vlc_common.core.alignment import Alignment
 from vlc_stereo_camera.core.upstream import yaw_rate_on_alignment
 
@@ -88,7 +96,8 @@ def test_array_rejects_bad_samples_and_restarts_after_a_gap():
 @pytest.mark.parametrize('speed_error', [-0.10, 0.0, 0.15])
 def test_match_finds_the_chainage_and_absorbs_the_speed_error(speed_error):
     """Noise, bias, a ±5° yaw oscillation and a speed scale error: chainage within 3 m,
-    ratio = 1/(1 + error)."""
+    ratio = 1/(1 + error).
+    """
     cfg = CurvatureConfig()
     v = 20.0
     t, w, s = yaw_rate_on_alignment(DEMO, 100.0, 1000.0, v, seed=2, bias_rps=0.002, noise_rps=0.005,
@@ -105,7 +114,8 @@ def test_match_finds_the_chainage_and_absorbs_the_speed_error(speed_error):
 def test_straight_track_is_refused_as_no_curvature_signal():
     cfg = CurvatureConfig()
     t, w, _ = yaw_rate_on_alignment(DEMO, 560.0, 300.0, 20.0)           # inside the 300 m straight
-    t2, w2, _ = yaw_rate_on_alignment(Alignment.straight(), 0.0, 1200.0, 20.0, seed=3, bias_rps=0.003,
+    t2, w2, _ = yaw_rate_on_alignment(Alignment.straight(), 0.0, 1200.0, 20.0, seed=3,
+                                      bias_rps=0.003,
                           noise_rps=0.005, vibration_deg=5.0)
     for alignment, (tt, ww) in ((Alignment.straight(), (t2, w2)), (DEMO, (t2, w2))):
         result = match(CurvatureTemplate(alignment, cfg), run_array(cfg, tt, ww, 20.0))
@@ -122,7 +132,8 @@ def test_short_array_is_too_short():
 
 def test_two_identical_curves_are_ambiguous():
     """A line with the same curve twice: a window that holds only one of them fits both
-    places equally — refused, no chainage."""
+    places equally — refused, no chainage.
+    """
     curve = [('clothoid', 60.0, 500.0), ('arc', 150.0, 500.0), ('clothoid', 60.0, math.inf)]
     twins = Alignment([('straight', 600.0)] + curve + [('straight', 700.0)] + curve
                       + [('straight', 600.0)], name='twins')
@@ -202,13 +213,14 @@ def test_localizer_pose_is_on_the_alignment():
 
 def test_chainage_sigma_grows_with_spread_and_short_windows():
     """The 1σ each accepted match carries (train_localizer's aid variance): floor for
-    a full window, larger for a short window or a spread; NaN for a refused match."""
+    a full window, larger for a short window or a spread; NaN for a refused match.
+    """
     cfg = CurvatureConfig()
     assert chainage_sigma(0.0, cfg.window_m, cfg) == pytest.approx(cfg.chainage_sigma_floor_m)
     assert chainage_sigma(0.0, cfg.min_window_m, cfg) == pytest.approx(
         math.hypot(cfg.chainage_sigma_floor_m, cfg.short_window_sigma_m))
     assert chainage_sigma(3.0, cfg.window_m, cfg) == pytest.approx(
         math.hypot(cfg.chainage_sigma_floor_m, 3.0))
-    refused = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, *yaw_rate_on_alignment(DEMO, 150.0, 400.0,
-                                                                            20.0)[:2], 20.0))
+    short = yaw_rate_on_alignment(DEMO, 150.0, 400.0, 20.0)
+    refused = match(CurvatureTemplate(DEMO, cfg), run_array(cfg, *short[:2], 20.0))
     assert math.isnan(refused.chainage_sigma_m)

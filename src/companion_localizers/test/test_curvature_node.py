@@ -16,8 +16,12 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 import yaml
 
-from companion_localizers.curvature_node import (_CORE_DEFAULTS, CORE_PARAMETERS,
-                                                 NODE_PARAMETERS, CurvatureNode)
+from companion_localizers.curvature_node import (
+    _CORE_DEFAULTS,
+    CORE_PARAMETERS,
+    NODE_PARAMETERS,
+    CurvatureNode,
+)
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.rotations import quat_to_matrix
 
@@ -113,7 +117,8 @@ def test_node_publishes_the_matched_chainage_on_the_alignment(make_node):
 def test_pose_with_covariance_carries_the_chainage_variance_along_the_track(make_node):
     """Every accepted match also leaves as PoseWithCovarianceStamped (train_localizer's
     re-acquisition aid): same pose, variance σ² along the track direction, the lateral
-    σ across it, and the error within 3σ."""
+    σ across it, and the error within 3σ.
+    """
     node = make_node(alignment='curved_demo', match_period_s=2.0, lateral_sigma_m=0.05)
     t, s = feed(node, DEMO, 150.0, 800.0, 20.0, speed_error=0.05)
     assert node.poses_cov and len(node.poses_cov) == len(node.poses)

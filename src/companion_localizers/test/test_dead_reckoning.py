@@ -2,10 +2,14 @@
 import numpy as np
 import pytest
 
-from companion_localizers.core.dead_reckoning import (DeadReckoning, DeadReckoningConfig,
-                                                      ImageStillConfig, ImageStillness)
-from vlc_stereo_camera.core.upstream import LAMPS, run_core
+from companion_localizers.core.dead_reckoning import (
+    DeadReckoning,
+    DeadReckoningConfig,
+    ImageStillConfig,
+    ImageStillness,
+)
 from vlc_common.core.observation import ImuSample
+from vlc_stereo_camera.core.upstream import LAMPS, run_core
 
 
 def test_acceleration_input_is_the_20_sample_moving_average():

@@ -4,17 +4,21 @@ import math
 import numpy as np
 import pytest
 
-from companion_localizers.core.along_track import (H_CHAINAGE, H_SPEED, AlongTrackFilter,
-                                                   FilterSettings)
+from companion_localizers.core.along_track import (
+    H_CHAINAGE,
+    H_SPEED,
+    AlongTrackFilter,
+    FilterSettings,
+)
 from companion_localizers.core.attitude_prior import fuse_tilt
 from companion_localizers.core.ranging import RangingConfig, range_to_lamp
-from vlc_common.core.rotations import quat_from_rpy, quat_to_rpy
 from train_localizer.core.fix import RigGeometry
-from vlc_common.core.observation import LampObservation
-from vlc_stereo_camera.core.upstream import SensorErrors, SensorSimulator
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import straight_tunnel_map
+from vlc_common.core.observation import LampObservation
+from vlc_common.core.rotations import quat_from_rpy, quat_to_rpy
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
+from vlc_stereo_camera.core.upstream import SensorErrors, SensorSimulator
 
 MS = 1_000_000
 DEG = math.pi / 180.0
@@ -34,7 +38,7 @@ def _run(measurement_order, delayed):
                     pending.append((k + 20, km))
                 else:
                     f.add_measurement(km * 2_500_000, *meas[km])
-        for due, km in [p for p in pending if p[0] == k]:
+        for _, km in [p for p in pending if p[0] == k]:
             f.add_measurement(km * 2_500_000, *meas[km])
     return f
 

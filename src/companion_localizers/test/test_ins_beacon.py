@@ -2,8 +2,7 @@
 import pytest
 
 from companion_localizers.core.ins_beacon import InsBeacon, InsBeaconConfig
-from vlc_stereo_camera.core.upstream import LAMPS, run_core
-from vlc_stereo_camera.core.upstream import SensorErrors
+from vlc_stereo_camera.core.upstream import LAMPS, SensorErrors, run_core
 
 
 @pytest.mark.parametrize('speed_kmh', [20.0, 100.0])

@@ -12,31 +12,34 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
-import yaml  # noqa: E402
 from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
+import yaml  # noqa: E402
 
 from companion_localizers import frame_node  # noqa: E402
-from vlc_stereo_camera.core.upstream import LAMPS  # noqa: E402
 from companion_localizers.dead_reckoning_node import DeadReckoningNode  # noqa: E402
 from companion_localizers.ins_beacon_node import InsBeaconNode  # noqa: E402
 from companion_localizers.rssi_localizer_node import PARAMETERS, RssiLocalizerNode  # noqa: E402
-from vlc_common.core.rotations import quat_from_rpy  # noqa: E402
 from spot_locator.conversions import PAIR_DTYPE  # noqa: E402
 from train_localizer.conversions import ns_to_stamp  # noqa: E402
-from vlc_stereo_camera.core.upstream import (SensorErrors, SensorSimulator,  # noqa: E402
-                                             event_stream)
-from vlc_decoder.conversions import LAMP_DTYPE  # noqa: E402
 from vlc_common.core.camera import StereoRig  # noqa: E402
 from vlc_common.core.optical_channel import PhotodiodeConfig  # noqa: E402
+from vlc_common.core.records import RSSI_DTYPE  # noqa: E402
+from vlc_common.core.rotations import quat_from_rpy  # noqa: E402
+from vlc_common.photodiode_channel import CHANNEL_PARAMETERS  # noqa: E402
+from vlc_common.pointcloud import records_to_cloud  # noqa: E402
+from vlc_decoder.conversions import LAMP_DTYPE  # noqa: E402
 from vlc_stereo_camera.core.photodiode import Photodiode  # noqa: E402
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration  # noqa: E402
-from vlc_common.core.records import RSSI_DTYPE  # noqa: E402
-from vlc_common.photodiode_channel import CHANNEL_PARAMETERS  # noqa: E402
+from vlc_stereo_camera.core.upstream import (  # noqa: E402
+    LAMPS,  # noqa: E402
+    SensorErrors,
+    SensorSimulator,
+    event_stream,
+)
 from vlc_stereo_camera.photodiode_node import sample_records  # noqa: E402
-from vlc_common.pointcloud import records_to_cloud  # noqa: E402
 
 PKG = pathlib.Path(__file__).resolve().parents[1]
 EPOCH_NS = 1704067200 * 10 ** 9

@@ -4,23 +4,31 @@ import math
 import numpy as np
 import pytest
 
-from companion_localizers.core.rssi import (LampReading, RssiConfig, collinear,
-                                            distances_from_power, model_power, trilaterate,
-                                            window_factor)
-from vlc_common.core.rotations import rot_z, rpy_to_matrix
+from companion_localizers.core.rssi import (
+    LampReading,
+    RssiConfig,
+    collinear,
+    distances_from_power,
+    model_power,
+    trilaterate,
+    window_factor,
+)
 from vlc_common.core.lamp_map import Lamp, LampMap, straight_tunnel_map
 from vlc_common.core.optical_channel import PhotodiodeConfig, photodiode_pose
+from vlc_common.core.rotations import rot_z, rpy_to_matrix
 from vlc_stereo_camera.core.photodiode import Photodiode
-from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                               VibrationConfig)
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 DEG = math.pi / 180.0
 STILL = Vibration(VibrationConfig(enabled=False))
 LAMPS = straight_tunnel_map()
 
 
-def readings_at(x_m, R=np.eye(3), cfg=None, lamp_map=LAMPS, yz=(0.0, 0.0), scale=None):
-    """Noise-free readings of the lamps a PD at base (x, y, z) with attitude R receives."""
+def readings_at(x_m, R=None, cfg=None, lamp_map=LAMPS, yz=(0.0, 0.0), scale=None):
+    """Noise-free readings of the lamps a PD at base (x, y, z) with attitude R (default
+    level) receives.
+    """
+    R = np.eye(3) if R is None else R
     cfg = cfg or PhotodiodeConfig(lamp_power_sigma_rel=0.0)
     pos, normal = photodiode_pose([x_m, *yz], R, cfg)
     lamps = [lamp for lamp in lamp_map.lamps if abs(lamp.position_m[0] - x_m) < 30.0]
@@ -133,7 +141,8 @@ def test_window_factor_removes_the_integration_bias_at_speed():
 def test_accuracy_on_the_rig_photodiode_beats_the_papers_rssi_figures(speed_kmh):
     """Photodiode with 2 % lamp tolerance, shot and thermal noise, vibration; the receiver
     knows the attitude to 0.05 deg (a converged compensator). Paper: max 39.23 cm, mean
-    13.36 cm."""
+    13.36 cm.
+    """
     rng = np.random.default_rng(7)
     traj = Trajectory(MotionProfile('constant', start_chainage_m=12.0,
                                     speed_mps=speed_kmh / 3.6), Vibration(seed=7))

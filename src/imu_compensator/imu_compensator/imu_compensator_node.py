@@ -35,11 +35,11 @@ from dataclasses import dataclass
 import math
 import sys
 
-import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
+import numpy as np
 from rcl_interfaces.msg import ParameterType
+import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -49,10 +49,9 @@ from sensor_msgs.msg import Imu
 
 from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
-from imu_compensator.core.compensator import (AttitudeCompensator, CompensatorConfig,
-                                              SampleStatus)
-from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
+from imu_compensator.core.compensator import AttitudeCompensator, CompensatorConfig, SampleStatus
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
+from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.polled import PolledSubscription
 from vlc_common.process import freeze_start_up_objects, spin_until_shutdown

@@ -91,7 +91,8 @@ def test_covariance_is_interpolated_linearly():
 @pytest.mark.parametrize('extrapolation_s', [0.0, 0.01])
 def test_at_is_at_many_to_the_bit(extrapolation_s):
     """The one-instant path gives at_many's row exactly: samples, between them, across a
-    gap, before the oldest, past the newest (with and without extrapolation), NaN."""
+    gap, before the oldest, past the newest (with and without extrapolation), NaN.
+    """
     rng = np.random.default_rng(1)
     buf = AttitudeBuffer(horizon_s=2.0, max_gap_s=0.05, max_extrapolation_s=extrapolation_s)
     t = 0.0

@@ -1,1 +1,3 @@
-"""Sub-pixel lamp spot centres in both stereo images (gray centroid, ellipse fit, circularity fusion, Wiener deblurring)."""
+"""Sub-pixel lamp spot centres in both stereo images (gray centroid, ellipse fit,
+circularity fusion, Wiener deblurring).
+"""

@@ -5,12 +5,10 @@
 
 import cv2
 import numpy as np
-from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
 
 from spot_locator.core.locator import StereoGeometry
 from vlc_common.core.records import PAIR_DTYPE  # noqa: F401 (re-exported)
-
-
+from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
 
 _CHANNELS = {'mono8': (np.uint8, 1), 'mono16': ('<u2', 1), '8UC1': (np.uint8, 1),
              '16UC1': ('<u2', 1), 'rgb8': (np.uint8, 3), 'bgr8': (np.uint8, 3)}

@@ -34,7 +34,7 @@ nothing between frames. A stamp more than ``backward_reset_s`` older than the ne
 paired one (a looped bag replay, a restarted camera) clears the pairing state with a
 throttled warning, so the replay is processed instead of being dropped as out of order.
 """
-from collections import deque, OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass
 import sys
 import time
@@ -51,16 +51,14 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from vlc_common.core.camera import mount_rotation, StereoRig
-
 from spot_locator import conversions
 from spot_locator.core.centres import ChordConfig
 from spot_locator.core.detection import DetectConfig
 from spot_locator.core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from spot_locator.core.matching import MatchConfig
+from vlc_common.core.camera import StereoRig, mount_rotation
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.process import (freeze_start_up_objects, keep_large_buffers,
-                                       spin_until_shutdown)
+from vlc_common.process import freeze_start_up_objects, keep_large_buffers, spin_until_shutdown
 
 EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0

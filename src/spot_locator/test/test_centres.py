@@ -72,7 +72,8 @@ def test_striped_ellipse_chord_fit_is_unbiased_and_beats_the_paper_methods():
 def _hidden_tip_spot(rng, tip, shape=SHAPE, centre=(40.0, 45.0)):
     """A tilted striped ellipse with one tip in a dark stripe: the tip's rows carry the
     lamp's residual 5 % (12 DN, barely above the 8.9 DN detection threshold at this noise),
-    so the threshold keeps scattered pixels of them only."""
+    so the threshold keeps scattered pixels of them only.
+    """
     c = np.asarray(centre) + rng.uniform(-0.5, 0.5, 2)
     img = synth.ellipse_spot(shape, c, (16.0, 5.0), np.radians(70.0), level=240.0)
     gain = synth.square_wave_rows(shape[0], 5.0, duty=0.6, phase_rows=rng.uniform(0, 5))
@@ -90,7 +91,8 @@ def test_chord_fit_is_not_pulled_by_a_tip_hidden_in_a_dark_stripe(tip):
     into windows that cut their chords short; the one-pass fit (each row over its own
     support) then puts the centre row off by ~0.15 rows, and u by k times that. The
     two-pass fit measures every row between the chord ends of a first ellipse drawn
-    through complete rows only."""
+    through complete rows only.
+    """
     new = SpotLocator(LocatorConfig(method='chord', eccentricity='off', vignetting='none'))
     old = SpotLocator(LocatorConfig(method='chord', eccentricity='off', vignetting='none',
                                     chord=cm.ChordConfig(two_pass=False)))
@@ -112,7 +114,8 @@ def test_chord_fit_is_not_pulled_by_a_tip_hidden_in_a_dark_stripe(tip):
 def test_each_spot_is_measured_against_its_own_background_plane():
     """The tunnel background is not flat: the frame's median is 2 DN off at this spot,
     which is a tenth of a dim row's signal; the ring around the spot gives its level and
-    its gradient, and the plane is what the ROI has removed."""
+    its gradient, and the plane is what the ROI has removed.
+    """
     shape = (240, 200)
     vv, uu = np.indices(shape)
     ramp = 5.0 * (vv / shape[0] + uu / shape[1])
@@ -154,7 +157,8 @@ def _cut_near_lamp(rng, ramp_dn_per_px=(-0.004, 0.008)):
     120 × 200 crop whose bottom edge is the image's: the edge cuts the ellipse 20 rows
     below its centre (its top tip is in, its bottom tip 28 rows off the image).
 
-    Returns the image and the imaged ellipse's centre (crop pixels)."""
+    Returns the image and the imaged ellipse's centre (crop pixels).
+    """
     from vlc_common.core.camera import StereoRig
     rig = StereoRig()
     normal = rig.R_base_cam.T @ np.array([0.0, -1.0, 0.0])
@@ -177,7 +181,8 @@ def test_chord_fit_of_a_spot_cut_by_the_image_edge():
     the PSF's widening of the tip rows is no longer balanced by the other tip (the vertex
     moves), and the background gradient across its 100-px rows moves every midpoint. The
     symmetric row band and the background plane remove both; each alone is not enough,
-    and the reported σ covers the error."""
+    and the reported σ covers the error.
+    """
     def locator(plane, symmetric):
         return SpotLocator(LocatorConfig(
             method='chord', eccentricity='off', vignetting='none',

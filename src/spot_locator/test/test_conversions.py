@@ -3,9 +3,9 @@ import pathlib
 
 import numpy as np
 import pytest
-import yaml
 from sensor_msgs.msg import CameraInfo, Image, PointField
 from std_msgs.msg import Header
+import yaml
 
 from spot_locator import conversions
 from spot_locator.core.locator import SpotPair, StereoGeometry

@@ -63,7 +63,8 @@ def test_blur_then_deblur_improves_the_centre_error():
     """A 6-px blur of an off-axis lamp is not symmetric about the mid-exposure image
     (the image velocity varies across the spot under perspective), which pulls the
     paper's centroid; Wiener deconvolution with the predicted kernel removes most of it.
-    At this rig's sub-pixel blur the effect is negligible (see the benchmark)."""
+    At this rig's sub-pixel blur the effect is negligible (see the benchmark).
+    """
     loc = SpotLocator(LocatorConfig(method='centroid', eccentricity='off', vignetting='none'))
     raw, restored = [], []
     for seed in range(10):

@@ -8,7 +8,8 @@ from spot_locator.core import detection as det
 
 def _frame(rng, shape, n_blobs, dtype=np.uint8, scale=1):
     """Dark noisy frame with striped and solid blobs, some side by side in one band,
-    some at the image edges."""
+    some at the image edges.
+    """
     h, w = shape
     img = rng.integers(0, 12, shape).astype(np.int64)
     for _ in range(n_blobs):

@@ -4,14 +4,20 @@ import math
 import numpy as np
 import pytest
 
+from train_localizer.core.fix import (
+    FixConfig,
+    RigGeometry,
+    constrained_fix,
+    exp_so3,
+    measurement_time_ns,
+    paper_fix,
+    triangulate,
+    vision_attitude,
+)
 from vlc_common.core.camera import StereoRig
-from vlc_common.core.rotations import rpy_to_matrix
 from vlc_common.core.lamp_map import straight_tunnel_map
-
-from train_localizer.core.fix import (FixConfig, RigGeometry, constrained_fix, exp_so3,
-                                      measurement_time_ns, paper_fix, triangulate,
-                                      vision_attitude)
 from vlc_common.core.observation import LampObservation
+from vlc_common.core.rotations import rpy_to_matrix
 
 DEG = math.pi / 180.0
 RIG = StereoRig()
@@ -168,7 +174,8 @@ def test_vision_attitude_recovers_the_attitude_without_the_imu_prior(dx, err_deg
     30° of heading (a cold start on a curve): consistent with the truth in its own
     covariance and, once the tilt is known, a tight heading. With an equally weak prior
     on every axis the unseen share of a 30° heading error went into the tilt (6° of
-    roll) and wrecked the curved outage run."""
+    roll) and wrecked the curved outage run.
+    """
     R_true = rpy_to_matrix(0.002, -0.001, 0.03)
     delta = np.array(err_deg) * DEG
     R_est = rpy_to_matrix(*delta) @ R_true

@@ -4,9 +4,8 @@ import math
 import numpy as np
 
 from spot_locator.conversions import PAIR_DTYPE
-from vlc_decoder.conversions import LAMP_DTYPE
-
 from train_localizer.core.join import FrameJoiner, JoinConfig, join_frame
+from vlc_decoder.conversions import LAMP_DTYPE
 
 
 def spots(*uvs):

@@ -4,8 +4,14 @@ import math
 import numpy as np
 import pytest
 
-from train_localizer.core.kalman import (H_SPEED, KalmanConfig, initial_state, predict,
-                                         process_noise, update)
+from train_localizer.core.kalman import (
+    H_SPEED,
+    KalmanConfig,
+    initial_state,
+    predict,
+    process_noise,
+    update,
+)
 
 
 def test_prediction_integrates_constant_acceleration_exactly():

@@ -4,19 +4,21 @@ import copy
 import numpy as np
 import pytest
 
-from vlc_common.core.camera import StereoRig
-from vlc_common.core.lamp_map import straight_tunnel_map
-from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
-from vlc_common.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
-                                            quat_to_rotvec)
-
 from train_localizer.core.fix import RigGeometry
 from train_localizer.core.integrity import IntegrityState, Level, select_association
 from train_localizer.core.localizer import Localizer, LocalizerConfig
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import straight_tunnel_map
 from vlc_common.core.observation import ImuSample, LampObservation
-from vlc_stereo_camera.core.upstream import (EPOCH_NS, SensorErrors, SensorSimulator,
-                                             event_stream, from_stamp_ns)
+from vlc_common.core.rotations import quat_conjugate, quat_from_rpy, quat_multiply, quat_to_rotvec
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
+from vlc_stereo_camera.core.upstream import (
+    EPOCH_NS,
+    SensorErrors,
+    SensorSimulator,
+    event_stream,
+    from_stamp_ns,
+)
 from vlc_stereo_camera.core.upstream import feed_localizer as feed
 
 RIG = StereoRig()
@@ -80,7 +82,8 @@ def test_cold_attitude_at_speed_stays_accurate_and_covered(speed_kmh):
 
 def test_attitude_aids_show_the_true_attitude_of_a_cold_imu():
     """The attitude each accepted lamp shows, rate-limited, independent of the IMU's:
-    consistent with the truth in its own covariance, the heading well seen."""
+    consistent with the truth in its own covariance, the heading well seen.
+    """
     deg = np.pi / 180.0
     errors = SensorErrors(attitude_sigma_rad=(0.5 * deg, 0.5 * deg, 5.0 * deg),
                           attitude_corr_time_s=30.0)
@@ -159,7 +162,8 @@ def test_delayed_fixes_give_the_in_order_result():
 
 def test_records_later_than_the_history_are_dropped_and_counted():
     """Perception more than history_s behind the IMU: its records are dropped, counted
-    (records_too_old, for diagnostics and the evaluation's graph health), never applied."""
+    (records_too_old, for diagnostics and the evaluation's graph health), never applied.
+    """
     traj, events = scenario(80.0, 1.5, seed=5)
     loc = make(history_s=0.2)
     late = []
@@ -320,7 +324,8 @@ def test_without_imu_the_fixes_still_give_a_pose():
 
 def test_an_imu_that_starts_late_is_still_used():
     """The IMU node starts 0.5 s after the camera (its first samples come in one burst):
-    fixes go ahead without it, then the late samples are inserted into the history."""
+    fixes go ahead without it, then the late samples are inserted into the history.
+    """
     traj, events = scenario(60.0, 3.0, seed=14)
     late = [(max(a, 0.5) if kind == 'imu' else a, k, kind, p)
             for k, (a, kind, p) in enumerate(events)]
@@ -364,7 +369,8 @@ def test_a_single_frame_cold_start_publishes_only_once_the_speed_is_known():
 def test_lamp_outage_stays_bounded_reports_degraded_and_reacquires_at_the_next_lamp():
     """Issue 7's outage: every second lamp dark for 200 m, then 500 m with none, at
     100 km/h. The error stays inside its 3σ, integrity degrades (coasting, then σ above
-    the limit), and the first lamp after the outage brings the error back to cm."""
+    the limit), and the first lamp after the outage brings the error back to cm.
+    """
     v = 100.0 / 3.6
     start_m, half_dark, dark = 5.0, (100.0, 300.0), (300.0, 800.0)
     traj, events = scenario(100.0, 900.0 / v, seed=8, start_m=start_m)
@@ -381,7 +387,7 @@ def test_lamp_outage_stays_bounded_reports_degraded_and_reacquires_at_the_next_l
 
     loc = make()
     states = []
-    poses, fixes, logs = [], [], []
+    poses, fixes = [], []
     for _, kind, payload in events:
         if kind == 'imu':
             report = loc.add_imu(payload)
@@ -409,11 +415,11 @@ def test_lamp_outage_stays_bounded_reports_degraded_and_reacquires_at_the_next_l
 def test_curved_alignment_through_transition_and_curve(speed_kmh):
     """curved_demo from its first straight through the clothoid into the R = 400 m curve:
     the fix puts base_link on the alignment, the filter runs along its chainage and the
-    pose lies on the curve, in map x and y."""
+    pose lies on the curve, in map x and y.
+    """
+    from train_localizer.core.track import Track
     from vlc_common.core.alignment import Alignment
     from vlc_common.core.lamp_map import alignment_lamp_map
-
-    from train_localizer.core.track import Track
 
     alignment = Alignment.named('curved_demo')
     lamps = alignment_lamp_map(alignment)

@@ -20,14 +20,12 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
-from std_msgs.msg import Header  # noqa: E402
 
 from train_localizer import conversions  # noqa: E402
+from train_localizer.train_localizer_node import PARAMETERS, TrainLocalizerNode  # noqa: E402
 from vlc_common.stamps import header  # noqa: E402
 from vlc_stereo_camera.core.upstream import constant_speed_run, from_stamp_ns  # noqa: E402
-from vlc_stereo_camera.upstream_messages import (CAMERA_FRAME, imu_msg, lamps_msg,  # noqa: E402
-                                                 spots_msg)
-from train_localizer.train_localizer_node import PARAMETERS, TrainLocalizerNode  # noqa: E402
+from vlc_stereo_camera.upstream_messages import CAMERA_FRAME, imu_msg, lamps_msg, spots_msg  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -238,7 +236,8 @@ def match_msg(stamp_ns, chainage_m, sigma_m, frame='map'):
 def test_curvature_match_applied_when_uncertain_and_reported(harness):
     """A prior of 20 m 1σ and no lamp: the first match is unconfirmed, the next (consistent
     with the distance run) is applied and the chainage σ falls to the match's; a NaN
-    match and one in another frame are skipped; the diagnostics count them."""
+    match and one in another frame are skipped; the diagnostics count them.
+    """
     h = harness({'diagnostics_period_s': 0.1, 'use_initial_prior': True,
                  'initial_chainage_m': 45.0, 'initial_chainage_sigma_m': 20.0,
                  'initial_speed_known': True, 'initial_speed_mps': 10.0})

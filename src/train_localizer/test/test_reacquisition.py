@@ -10,19 +10,31 @@ import math
 import numpy as np
 import pytest
 
+from train_localizer.core.fix import RigGeometry
+from train_localizer.core.localizer import Localizer, LocalizerConfig
+from train_localizer.core.reacquisition import (
+    APPLIED,
+    IGNORED,
+    REJECTED_GATE,
+    RESET,
+    UNCONFIRMED,
+    ChainageAid,
+    ReacquisitionConfig,
+    chainage_measurement,
+)
+from train_localizer.core.track import Track
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import alignment_lamp_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
-from train_localizer.core.fix import RigGeometry
-from train_localizer.core.localizer import Localizer, LocalizerConfig
-from train_localizer.core.reacquisition import (APPLIED, IGNORED, REJECTED_GATE, RESET,
-                                                UNCONFIRMED, ChainageAid, ReacquisitionConfig,
-                                                chainage_measurement)
-from vlc_stereo_camera.core.upstream import (SensorErrors, SensorSimulator, dark_lamps,
-                                             event_stream, feed_localizer, from_stamp_ns)
-from train_localizer.core.track import Track
+from vlc_stereo_camera.core.upstream import (
+    SensorErrors,
+    SensorSimulator,
+    dark_lamps,
+    event_stream,
+    feed_localizer,
+    from_stamp_ns,
+)
 
 RIG = StereoRig()
 DEMO = Alignment.named('curved_demo')
@@ -37,7 +49,8 @@ COLD = SensorErrors(attitude_sigma_rad=(0.03 * _DEG, 0.5 * _DEG, 0.1 * _DEG),
 def run(dark, start_m=700.0, end_m=1300.0, matches=None, aid_config=None, errors=COLD,
         seed=3, prior=None, frames=True):
     """Localizer along curved_demo at 80 km/h, lamps in ``dark`` removed; ``matches(t_s,
-    truth_m)`` → (chainage, σ) or None, once per second. Returns (poses arrays, aid, fixes)."""
+    truth_m)`` → (chainage, σ) or None, once per second. Returns (poses arrays, aid, fixes).
+    """
     v = 80.0 / 3.6
     traj = Trajectory(MotionProfile('constant', start_chainage_m=start_m, speed_mps=v),
                       Vibration(seed=seed), alignment=DEMO)
@@ -90,7 +103,8 @@ def outage_without_aid():
 def test_outage_on_a_curve_aid_bounds_error_and_sigma_to_the_match(outage_without_aid):
     """500 m dark at 80 km/h: without the aid the 3σ grows to tens of metres; with
     matches of σ = 2 m it stays at a few metres, the error within it, and the first lamp
-    after the outage is accepted at once (its gate needs the state within metres)."""
+    after the outage is accepted at once (its gate needs the state within metres).
+    """
     (t0, x0, e0, s0), aid0, fixes0 = outage_without_aid
     (t1, x1, e1, s1), aid1, fixes1 = run(DARK, matches=noisy(2.0))
     late0 = (x0 > DARK[0] + 300.0) & (x0 < DARK[1])
@@ -124,7 +138,8 @@ def test_matches_are_ignored_while_lamps_are_tracked():
 def test_wrong_and_isolated_matches_never_move_the_state():
     """In the outage: matches 150 m off (another curve) fail the gate, and an isolated
     match (no predecessor within the gap) or one that jumps is unconfirmed. Nothing is
-    applied; the state stays what the IMU says."""
+    applied; the state stays what the IMU says.
+    """
     calls = []
 
     def wrong(t, truth):
@@ -151,7 +166,8 @@ def test_hopeless_state_is_reset_by_a_long_consistent_run_of_matches():
     """No lamp at all, a prior 60 m off claiming 6 m: every match fails the gate; once
     they have agreed over 200 m of running the chainage is reset to them. Without the
     reset rule the state stays 60 m off until its own σ has grown enough (~15 m) for the
-    gate to admit the matches."""
+    gate to admit the matches.
+    """
     (t, x, e, s), aid, _ = run((0.0, 1e9), start_m=700.0, end_m=1050.0, matches=noisy(2.0),
                                prior=(760.0, 6.0), frames=False)
     c = aid.counters.counts

@@ -1,1 +1,3 @@
-"""Stereo triangulation, Kalman fusion with the IMU along the track, integrity checks; publishes the train position."""
+"""Stereo triangulation, Kalman fusion with the IMU along the track, integrity checks;
+publishes the train position.
+"""

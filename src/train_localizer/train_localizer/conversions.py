@@ -19,10 +19,9 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
+
+from vlc_common.core.observation import NS_PER_S, ImuSample
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
-
-from vlc_common.core.observation import ImuSample, NS_PER_S
-
 
 
 def stamp_to_ns(stamp):

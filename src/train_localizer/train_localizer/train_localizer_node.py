@@ -45,23 +45,30 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
-from vlc_common.core.camera import StereoRig
-from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import PolledSubscription
-from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
-from vlc_common.throttled_log import ThrottledWarnings
-
 from train_localizer import conversions
 from train_localizer.core.fix import FixConfig, RigGeometry
 from train_localizer.core.integrity import IntegrityConfig, Level
 from train_localizer.core.join import FrameJoiner, JoinConfig
 from train_localizer.core.kalman import KalmanConfig
 from train_localizer.core.localizer import Localizer, LocalizerConfig
-from train_localizer.core.reacquisition import (APPLIED, BAD_INPUT, IGNORED, REJECTED_GATE, RESET,
-                                 ChainageAid, ReacquisitionConfig, chainage_measurement)
+from train_localizer.core.reacquisition import (
+    APPLIED,
+    BAD_INPUT,
+    IGNORED,
+    REJECTED_GATE,
+    RESET,
+    ChainageAid,
+    ReacquisitionConfig,
+    chainage_measurement,
+)
 from train_localizer.core.standstill import StandstillConfig
 from train_localizer.core.track import Track
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import PolledSubscription
+from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_common.throttled_log import ThrottledWarnings
 
 _RIG = StereoRig()
 _DEG = math.pi / 180.0
@@ -269,7 +276,8 @@ class TrainLocalizerNode(Node):
         self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
                           clock=self._steady)
         self.get_logger().info(
-            f'lamp map {path} ({len(self.lamp_map)} lamps), track {self.localizer_config.fix.track.name}; range constraint '
+            f'lamp map {path} ({len(self.lamp_map)} lamps), track '
+            f'{self.localizer_config.fix.track.name}; range constraint '
             f'{p["use_range_constraint"]}, IMU attitude {p["use_imu_attitude"]}, exposure '
             f'stamping {p["use_exposure_stamping"]}, Kalman {p["use_kalman"]}')
 
@@ -277,7 +285,8 @@ class TrainLocalizerNode(Node):
     @classmethod
     def setup(cls, p):
         """(LampMap, LocalizerConfig) of a parameter dict; the track is the alignment
-        named by ``alignment`` or by the lamp map file (ValueError if unknown)."""
+        named by ``alignment`` or by the lamp map file (ValueError if unknown).
+        """
         config = cls._config(p)
         lamp_map = LampMap.load(resolve_lamp_map_path(p['lamp_map_path'],
                                                       p['alignment'] or 'straight'))

@@ -1,31 +1,49 @@
 """Bag core without ROS: crash-safe split writer, open_bag/write_bag, recording and
-playback logic. Bags are read back with rosbags and with the independent mcap reader."""
+playback logic. Bags are read back with rosbags and with the independent mcap reader.
+"""
+from pathlib import Path
 import signal
 import struct
 import subprocess
 import sys
 import textwrap
 import threading
-from pathlib import Path
 
-import numpy as np
-import pytest
-import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+import numpy as np
+import pytest
 from rosbags.interfaces import QosDurability, QosReliability
 from rosbags.rosbag2 import Reader
+import yaml
 
-from vlc_bags import (SplitBagWriter, bag_summary, iter_raw, jazzy_typestore,
-                                      open_bag, qos_profile, read_receive_times, write_bag)
-from vlc_bags.playback import (PlaybackSchedule, PlayerConfig, delayed,
-                                               missing_topics,
-                                               parse_remaps, playback_qos, select_topics,
-                                               time_window)
-from vlc_bags.recording import (RecorderConfig, RecordingSession,
-                                                incompatible_offers, subscription_qos)
-from vlc_bags.typesupport import (ensure_type, has_stamp, header_stamp_ns,
-                                                  message_definition)
+from vlc_bags import (
+    SplitBagWriter,
+    bag_summary,
+    iter_raw,
+    jazzy_typestore,
+    open_bag,
+    qos_profile,
+    read_receive_times,
+    write_bag,
+)
+from vlc_bags.playback import (
+    PlaybackSchedule,
+    PlayerConfig,
+    delayed,
+    missing_topics,
+    parse_remaps,
+    playback_qos,
+    select_topics,
+    time_window,
+)
+from vlc_bags.recording import (
+    RecorderConfig,
+    RecordingSession,
+    incompatible_offers,
+    subscription_qos,
+)
+from vlc_bags.typesupport import ensure_type, has_stamp, header_stamp_ns, message_definition
 
 TS = jazzy_typestore()
 EPOCH_NS = 1_704_067_200 * 10**9

@@ -12,11 +12,12 @@ import signal
 import threading
 import time
 
+from geometry_msgs.msg import PoseStamped
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
 import rclpy
-import yaml
-from geometry_msgs.msg import PoseStamped
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -24,12 +25,17 @@ from rosbags.interfaces import QosReliability
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, Imu
 from std_msgs.msg import String
+import yaml
 
-from vlc_bags import (bag_summary, iter_raw, jazzy_typestore, open_bag,
-                                      qos_profile, read_receive_times, write_bag)
-
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
+from vlc_bags import (
+    bag_summary,
+    iter_raw,
+    jazzy_typestore,
+    open_bag,
+    qos_profile,
+    read_receive_times,
+    write_bag,
+)
 
 pytestmark = [pytest.mark.graph, pytest.mark.ros]
 
@@ -102,7 +108,8 @@ def wait_matched(publishers, proc, launch, timeout_s=20.0):
 def mcap_decoded(bag):
     """{topic: [decoded messages]} of the splits metadata.yaml lists, read with the mcap
     package alone (a kill between the file rename and the metadata rename can leave one
-    finished split that is not listed yet; like every rosbag2 reader, skip it)."""
+    finished split that is not listed yet; like every rosbag2 reader, skip it).
+    """
     out = {}
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     for name in meta['relative_file_paths']:

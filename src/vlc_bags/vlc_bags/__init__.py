@@ -9,8 +9,18 @@ Core helpers (no rclpy) for evaluation code, tests and scenario generation::
 Executables: ``bag_recorder`` (``recorder_node``) and ``bag_player`` (``player_node``).
 See docs/arch/bags.md.
 """
-from vlc_bags.bagio import (BagMessage, RawMessage, TopicSummary, bag_summary, bag_time_range,
-                    iter_raw, open_bag, qos_profile, read_receive_times, write_bag)
+from vlc_bags.bagio import (
+                    BagMessage,
+                    RawMessage,
+                    TopicSummary,
+                    bag_summary,
+                    bag_time_range,
+                    iter_raw,
+                    open_bag,
+                    qos_profile,
+                    read_receive_times,
+                    write_bag,
+)
 from vlc_bags.split_writer import SplitBagWriter
 from vlc_bags.typesupport import jazzy_typestore
 

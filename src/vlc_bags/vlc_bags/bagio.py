@@ -12,14 +12,23 @@ No rclpy here.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 import csv
-import io
 from dataclasses import dataclass
+import io
 from pathlib import Path
-from typing import Iterable, Iterator, Mapping, NamedTuple, Sequence
+from typing import NamedTuple
 
-from rosbags.interfaces import (Connection, MessageDefinitionFormat, Qos, QosDurability,
-                                QosHistory, QosLiveliness, QosReliability, QosTime)
+from rosbags.interfaces import (
+    Connection,
+    MessageDefinitionFormat,
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.typesys import get_types_from_idl, get_types_from_msg

@@ -1,4 +1,4 @@
-"""Benchmark: can ``bag_recorder`` keep up with the train's sensor load on one core?
+"""Benchmark: whether ``bag_recorder`` keeps up with the train's sensor load on one core.
 
 Publishes 2 × 30 Hz mono8 1280×720 images (0.9 MB each, reliable keep last 5) and a
 400 Hz IMU (sensor data QoS) from this process for ``--seconds``, records them with the
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 import shutil
 import signal
 import struct
@@ -25,7 +26,6 @@ import subprocess
 import tempfile
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -56,8 +56,8 @@ def main() -> None:
     args = parser.parse_args()
 
     os.environ['ROS_DOMAIN_ID'] = str(150 + os.getpid() % 80)
-    import rclpy
     from ament_index_python.packages import get_package_prefix
+    import rclpy
     from rclpy.context import Context
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from rclpy.serialization import serialize_message

@@ -3,9 +3,9 @@ remapping, publisher QoS from the recorded offers, and the wall-clock schedule.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 import heapq
-from typing import Iterable, Sequence
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosReliability
 

@@ -25,23 +25,30 @@ import sys
 import threading
 import time
 
-import rclpy
-import rclpy.logging
 from builtin_interfaces.msg import Time
+import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import ReaderError
 from rosgraph_msgs.msg import Clock
 
-from vlc_common.process import keep_large_buffers
-
 from vlc_bags.bagio import bag_summary, bag_time_range, iter_raw
 from vlc_bags.conversions import message_class, qos_to_rclpy
 from vlc_bags.params import declare
-from vlc_bags.playback import (PlaybackSchedule, PlayerConfig, delayed, missing_topics, parse_remaps,
-                       playback_qos, select_topics, time_window)
+from vlc_bags.playback import (
+    PlaybackSchedule,
+    PlayerConfig,
+    delayed,
+    missing_topics,
+    parse_remaps,
+    playback_qos,
+    select_topics,
+    time_window,
+)
+from vlc_common.process import keep_large_buffers
 
 
 class BagPlayerNode(Node):

@@ -28,23 +28,28 @@ See docs/arch/bags.md.
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 import sys
 import time
-from pathlib import Path
 
 import rclpy
-import rclpy.logging
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
+import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from vlc_common.polled import PolledSubscription
-from vlc_common.process import keep_large_buffers, spin_until_shutdown
 
 from vlc_bags.conversions import message_class, qos_from_rclpy, qos_to_rclpy
 from vlc_bags.params import declare
-from vlc_bags.recording import (RecorderConfig, RecordingSession, default_output_name,
-                        incompatible_offers, subscription_qos)
+from vlc_bags.recording import (
+    RecorderConfig,
+    RecordingSession,
+    default_output_name,
+    incompatible_offers,
+    subscription_qos,
+)
+from vlc_common.polled import PolledSubscription
+from vlc_common.process import keep_large_buffers, spin_until_shutdown
 
 
 class BagRecorderNode(Node):

@@ -3,13 +3,13 @@ bag timestamp of each message, and the receive-time log written next to the bag.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 import datetime
 import logging
+from pathlib import Path
 import queue
 import threading
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Sequence
 
 from rosbags.interfaces import Qos, QosDurability, QosReliability
 

@@ -22,18 +22,18 @@ No rclpy here.
 """
 from __future__ import annotations
 
-import logging
-import shutil
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+import logging
 from pathlib import Path
-from typing import Mapping, Sequence
+import shutil
 
-import yaml
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys.store import Typestore
+import yaml
 
 from vlc_bags.typesupport import jazzy_typestore, message_definition
 
@@ -257,7 +257,7 @@ class SplitBagWriter:
     def _write_metadata(self) -> None:
         write_text_atomic(self.path / 'metadata.yaml', self._metadata_text())
 
-    def __enter__(self) -> 'SplitBagWriter':
+    def __enter__(self) -> SplitBagWriter:
         return self
 
     def __exit__(self, *exc) -> None:

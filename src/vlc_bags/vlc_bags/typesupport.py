@@ -7,11 +7,11 @@ the recorder can still write a definition readers can decode. No rclpy here.
 """
 from __future__ import annotations
 
+from collections.abc import Iterable
 import logging
 import os
-import struct
 from pathlib import Path
-from typing import Iterable
+import struct
 
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore

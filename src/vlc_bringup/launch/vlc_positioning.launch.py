@@ -10,7 +10,8 @@ rig (stereo camera and ADIS16488 on one scenario, ``config/rig.yaml``). With
     ros2 bag play bags/sample_100kmh --clock          # in a second shell
 
 Arguments: ``use_rig`` (true), ``motion_profile`` (constant), ``speed_kmh`` (60.0),
-``start_chainage_m`` (0.0), ``seed`` (1), ``alignment`` (straight; or e.g. curved_demo, with its lamp map),
+``start_chainage_m`` (0.0), ``seed`` (1), ``alignment`` (straight; or e.g. curved_demo,
+with its lamp map),
 ``lamp_map_path`` ('' = the alignment's), ``use_sim_time`` (false; true when replaying
 a bag with ``--clock``), ``use_curvature`` (true: also start ``curvature_node``, whose
 matches the localizer uses to re-acquire after a long lamp outage; on a straight line it

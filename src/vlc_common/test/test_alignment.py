@@ -10,10 +10,14 @@ import pytest
 from scipy.integrate import cumulative_trapezoid
 
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
-from vlc_common.core.lamp_map import (LampMap, alignment_lamp_map, default_lamp_map_path,
-                                             lamp_map_file_name, resolve_lamp_map_path,
-                                             straight_tunnel_map)
-from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS, ScenarioConfig
+from vlc_common.core.lamp_map import (
+    LampMap,
+    alignment_lamp_map,
+    default_lamp_map_path,
+    lamp_map_file_name,
+    resolve_lamp_map_path,
+    straight_tunnel_map,
+)
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config'
 
@@ -174,26 +178,3 @@ def test_lamp_map_paths_per_alignment():
     assert default_lamp_map_path('curved_demo').endswith('lamp_map_curved_demo.yaml')
     assert resolve_lamp_map_path('') == default_lamp_map_path()
     assert resolve_lamp_map_path('', 'curved_demo') == default_lamp_map_path('curved_demo')
-
-
-# --- rig parameter -------------------------------------------------------------------
-
-def _scenario(**overrides):
-    values = {name: default for name, default, _ in SCENARIO_PARAMETERS}
-    values.update(overrides)
-    return ScenarioConfig(**values)
-
-
-def test_rig_parameter_selects_the_alignment():
-    assert dict((n, d) for n, d, _ in SCENARIO_PARAMETERS)['alignment'] == 'straight'
-    assert _scenario().trajectory().alignment.is_straight
-    traj = _scenario(alignment='curved_demo', start_chainage_m=380.0,
-                     motion_profile='stationary', vibration_enabled=False).trajectory()
-    s = traj.sample([0.0])
-    expected = Alignment.named('curved_demo').evaluate(380.0)
-    assert s.position_m[0, :2] == pytest.approx([expected.x_m[0], expected.y_m[0]])
-    assert s.rpy_rad[0, 2] == pytest.approx(expected.heading_rad[0])
-    assert _scenario(alignment='curved_demo').default_lamp_map_path().endswith(
-        'lamp_map_curved_demo.yaml')
-    with pytest.raises(ValueError, match='unknown alignment'):
-        _scenario(alignment='zigzag').trajectory()

@@ -1,9 +1,16 @@
 """Quaternion helpers against explicit rotation matrices (R = Rz·Ry·Rx, x, y, z, w)."""
 import numpy as np
 
-from vlc_common.core.rotations import (quat_from_rotvec, quat_from_rpy, quat_multiply,
-                                            quat_slerp, quat_to_matrix, quat_to_rotvec,
-                                            quat_to_rpy, wrap_angle)
+from vlc_common.core.rotations import (
+    quat_from_rotvec,
+    quat_from_rpy,
+    quat_multiply,
+    quat_slerp,
+    quat_to_matrix,
+    quat_to_rotvec,
+    quat_to_rpy,
+    wrap_angle,
+)
 
 
 def _rz(a):

@@ -1,6 +1,7 @@
-"""What a photodiode receiver and the rig's photodiode share: the channel parameters (the rig draws samples with them, the RSSI
-localizer inverts the channel with them), declared from one table so both read one
-parameter file's values."""
+"""What a photodiode receiver and the rig's photodiode share: the channel parameters
+(the rig draws samples with them, the RSSI localizer inverts the channel with them),
+declared from one table so both read one parameter file's values.
+"""
 from rcl_interfaces.msg import ParameterType
 
 from vlc_common.core.optical_channel import PhotodiodeConfig

@@ -31,7 +31,8 @@ class _NeverWaited(CallbackGroup):
 
 class PolledSubscription:
     """``node.create_subscription`` without a callback: messages wait in the
-    subscription's queue (its QoS depth, keep-last) until :meth:`take_all`."""
+    subscription's queue (its QoS depth, keep-last) until :meth:`take_all`.
+    """
 
     def __init__(self, node, msg_type, topic, qos, raw=False):
         self._sub = node.create_subscription(msg_type, topic, _never_called, qos,

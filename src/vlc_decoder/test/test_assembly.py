@@ -105,7 +105,8 @@ def test_chip_rate_mismatch_within_a_frame(mismatch):
 
 def test_packet_start_is_located_by_structure_never_by_trying_phases_against_the_crc():
     """Partial folds: brute force over the 54 phases finds CRC-valid wrong UIDs; the
-    structural rule (header pattern + Manchester) never decodes one."""
+    structural rule (header pattern + Manchester) never decodes one.
+    """
     rng = np.random.default_rng(14)
     brute_wrong = structural_wrong = structural_right = 0
     for _ in range(3000):
@@ -125,7 +126,7 @@ def test_packet_start_is_located_by_structure_never_by_trying_phases_against_the
             bits = np.where(data[:, 0] != chips.UNKNOWN, data[:, 0] == chips.ON,
                             data[:, 1] == chips.OFF).astype(int)
             word = int(''.join(map(str, bits)), 2)
-            got, crc = word >> 8, word & 0xFF
+            got = word >> 8
             if (np.all((data[:, 0] != chips.UNKNOWN) | (data[:, 1] != chips.UNKNOWN))
                     and synth.text_packet_uids(np.concatenate(
                         [[1, 1, 1, 0, 0, 0], np.stack([bits, 1 - bits], 1).ravel()])[None])[0]
@@ -142,7 +143,8 @@ def test_packet_start_is_located_by_structure_never_by_trying_phases_against_the
 
 def test_off_spec_clock_fragments_are_placed_by_their_overlaps(monkeypatch):
     """0.1 % and 2 % off: 8 frames of 30 chips each. The frame-to-frame phase is lost,
-    but each fragment's own chips overlap the fold built so far at one shift only."""
+    but each fragment's own chips overlap the fold built so far at one shift only.
+    """
     def confirmed(error):
         rng = np.random.default_rng(31)
         count = 0
@@ -164,7 +166,8 @@ def test_off_spec_clock_fragments_are_placed_by_their_overlaps(monkeypatch):
 
 def test_partial_packet_publishes_the_data_bits_it_has_read():
     """Before the CRC can be checked, the bits read so far (for matching the lamp a
-    map predicts) are the lamp's: data_word agrees with UID << 8 | CRC under data_mask."""
+    map predicts) are the lamp's: data_word agrees with UID << 8 | CRC under data_mask.
+    """
     rng = np.random.default_rng(17)
     partial = 0
     for _ in range(10):

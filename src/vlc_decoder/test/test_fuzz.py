@@ -51,7 +51,7 @@ def test_fuzz_assembler_with_corrupted_fragment_sequences():
     """Short fragments with misreads, foreign lamps mixed in and off-spec clocks."""
     rng = np.random.default_rng(7)
     wrong = confirmed = 0
-    for trial in range(300):
+    for _ in range(300):
         uid, other = (int(u) for u in rng.integers(0, 1 << 16, 2))
         chips_true = np.tile(synth.text_packets([uid])[0], 400).astype(float)
         chips_other = np.tile(synth.text_packets([other])[0], 400).astype(float)
@@ -85,11 +85,12 @@ def test_fuzz_assembler_with_corrupted_fragment_sequences():
 def test_fuzz_assembler_at_graph_timing_with_neighbouring_lamps():
     """The graph's timing, clocks up to 2 % off, and from the fourth frame on a spot of
     a neighbouring lamp of the same line (same header and line bits) in 15 % of the
-    frames: the track is the lamp it started on, never the neighbour."""
+    frames: the track is the lamp it started on, never the neighbour.
+    """
     rng = np.random.default_rng(31)
     cfg = GRAPH_CFG
     wrong = confirmed = 0
-    for trial in range(150):
+    for _ in range(150):
         uid = int(rng.integers(0, 1 << 16))
         other = (uid & 0xF000) | ((uid + int(rng.integers(1, 4))) & 0xFFF)
         chips_true = np.tile(synth.text_packets([uid])[0], 800).astype(float)

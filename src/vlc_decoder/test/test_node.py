@@ -6,10 +6,10 @@ rclpy Context on an isolated DDS domain (``ros_env``).
 """
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -218,7 +218,8 @@ def test_node_reports_uid_absent_from_the_map_as_anomaly(harness, tmp_path):
 
 def test_node_starts_afresh_when_a_looped_bag_jumps_back(harness):
     """Stamps jumping back by more than stamp_jump_reset_s (a looped replay) reset the
-    lamp tracks with a warning and decoding goes on; a smaller step back is skipped."""
+    lamp tracks with a warning and decoding goes on; a smaller step back is skipped.
+    """
     h = harness()
     run = list(frames(45))
     track_ids = set()
@@ -246,7 +247,8 @@ def test_node_starts_afresh_when_a_looped_bag_jumps_back(harness):
 
 def test_parameter_file_and_declared_defaults_carry_the_same_signal_timing():
     """The node's params file is where the graph's timing is written (benchmarks and the
-    fuzz read it there); the node's declared defaults must say the same."""
+    fuzz read it there); the node's declared defaults must say the same.
+    """
     import pathlib
 
     from vlc_decoder.core.config import SIGNAL_TIMING_KEYS, signal_timing_from_params_file
@@ -260,9 +262,9 @@ def test_parameter_file_and_declared_defaults_carry_the_same_signal_timing():
 
 
 def test_warm_up_runs_the_confirming_path_on_a_throwaway_tracker():
+    from vlc_common.core.lamp_map import straight_tunnel_map
     from vlc_decoder.core.config import DecoderConfig
     from vlc_decoder.vlc_decoder_node import warm_up
-    from vlc_common.core.lamp_map import straight_tunnel_map
     lamp_map = straight_tunnel_map(count=3)
     assert warm_up(DecoderConfig(), lamp_map) == 1      # the near lamp, from the map
     assert warm_up(DecoderConfig(), None) == 1          # no map: the worked example's UID

@@ -114,7 +114,8 @@ def test_row_profile_reads_chips_of_a_frame():
 def test_envelope_fitted_on_the_on_rows_reads_the_cap_rows(height, width):
     """The lit extent ends early when a cap chip is off and late when the optics spill an
     "on" cap; the parabola through the squared sums of the rows read "on" (an ellipse's
-    squared chord) recovers the disc, so the partly weighted cap rows read true too."""
+    squared chord) recovers the disc, so the partly weighted cap rows read true too.
+    """
     rng = np.random.default_rng(21)
     errors = []
     for _ in range(30):

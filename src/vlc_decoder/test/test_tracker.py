@@ -7,8 +7,8 @@ import pytest
 from vlc_decoder.core import synth
 from vlc_decoder.core.assembly import CONFIRMED
 from vlc_decoder.core.config import DecoderConfig, signal_timing_from_params_file
-from vlc_decoder.core.tracker import LampTracker, combine_profiles, pair_spots, path_prediction
 from vlc_decoder.core.spots import detect
+from vlc_decoder.core.tracker import LampTracker, combine_profiles, pair_spots, path_prediction
 
 CFG = DecoderConfig()
 NODE_PARAMS = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'vlc_decoder_node.yaml'
@@ -70,7 +70,7 @@ def test_synthetic_pass_one_track_per_lamp_and_right_uids():
     uids = [0x1001, 0x1002, 0x1003]
     tracker = LampTracker(CFG, MapStub(uids))
     seen = {}
-    for stamp, left, right, truth in synth.pass_frames(60.0, uids, seed=3):
+    for stamp, left, right, _ in synth.pass_frames(60.0, uids, seed=3):
         for rec in tracker.process(stamp, left, right):
             if rec.state >= CONFIRMED:
                 assert rec.uid in uids
@@ -121,7 +121,8 @@ def _lamp_frame(lamps, k):
 def test_a_confirmed_track_never_carries_its_uid_to_another_lamp():
     """Lamp A is confirmed, then vanishes; its neighbour B (same line: same header and
     line bits) shows up inside A's gate but away from A's predicted position. B's
-    stripes are off A's clock grid or contradict A's packet there: a new track."""
+    stripes are off A's clock grid or contradict A's packet there: a new track.
+    """
     wrong = 0
     for trial in range(12):
         rng = np.random.default_rng(100 + trial)
@@ -193,7 +194,8 @@ def test_rig_high_speed_never_a_wrong_uid():
 def test_path_prediction_moves_a_new_track_as_earlier_lamps_moved_from_its_spot_height():
     """A lamp's image speeds up along its path (x1.5 per frame): one observation gives
     no velocity, but an earlier lamp's path, matched by spot height (vibration offsets
-    the paths by tens of pixels), gives the next step."""
+    the paths by tens of pixels), gives the next step.
+    """
     t = np.arange(6) / 30.0
     steps = 50.0 * 1.5 ** np.arange(5)
     pos = np.zeros((6, 2))
@@ -220,7 +222,8 @@ def test_rig_at_120_kmh_every_lamp_is_one_track_and_confirmed_in_view():
     """Graph timing, 120 km/h, run 8: lamp 0x1005 is in view only 5 frames, its spot
     moving 100-300 px per frame. Without a motion prior for new tracks each of its
     frames started a track (none confirmed), and stale one-frame tracks near the image
-    entry took the next lamp's first spots."""
+    entry took the next lamp's first spots.
+    """
     timing = {k: v for k, v in signal_timing_from_params_file(
         NODE_PARAMS).items() if k in ('chip_rate_hz', 'exposure_s')}
     cfg = DecoderConfig(**timing)

@@ -1,1 +1,3 @@
-"""VLC stripe decoder: lamp spots to CRC-checked UIDs and lamp-map positions, tracked over frames."""
+"""VLC stripe decoder: lamp spots to CRC-checked UIDs and lamp-map positions, tracked over
+frames.
+"""

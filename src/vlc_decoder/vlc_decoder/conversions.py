@@ -2,14 +2,20 @@ r"""Messages ↔ arrays for the decoder node: images in, lamp records and diagno
 
 ``vlc/lamps`` layout: :data:`vlc_common.core.records.LAMP_DTYPE`.
 """
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from vlc_common.core.records import (FLAG_CONTENT_ALIGNED, FLAG_LEFT, FLAG_LEFT_CUT,  # noqa: F401
-                                     FLAG_READ_LEFT, FLAG_READ_RIGHT, FLAG_RIGHT,
-                                     FLAG_RIGHT_CUT, LAMP_DTYPE)
+import numpy as np
+
+from vlc_common.core.records import (  # noqa: F401
+    FLAG_CONTENT_ALIGNED,
+    FLAG_LEFT,
+    FLAG_LEFT_CUT,
+    FLAG_READ_LEFT,
+    FLAG_READ_RIGHT,
+    FLAG_RIGHT,
+    FLAG_RIGHT_CUT,
+    LAMP_DTYPE,
+)
 from vlc_common.pointcloud import records_to_cloud  # noqa: F401 (re-exported)
-
-
 
 # encoding → (channels, bytes per channel, OpenCV conversion to gray or None)
 _ENCODINGS = {
@@ -22,7 +28,8 @@ _ENCODINGS = {
 
 class ImageError(ValueError):
     """An image message the decoder cannot use: ``kind`` names the problem, the text
-    says why."""
+    says why.
+    """
 
     def __init__(self, kind, text):
         super().__init__(text)

@@ -33,8 +33,7 @@ import time
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -42,13 +41,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_common.process import (freeze_start_up_objects, keep_large_buffers,
-                                       spin_until_shutdown)
+from vlc_common.process import freeze_start_up_objects, keep_large_buffers, spin_until_shutdown
 from vlc_common.throttled_log import ThrottledWarnings
-
 from vlc_decoder import conversions
-from vlc_decoder.core.config import DecoderConfig
 from vlc_decoder.core import synth
+from vlc_decoder.core.config import DecoderConfig
 from vlc_decoder.core.tracker import ANOMALY, CONFIRMED, LampTracker
 
 WARN_THROTTLE_S = 2.0

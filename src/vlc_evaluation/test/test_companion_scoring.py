@@ -9,9 +9,9 @@ rclpy = pytest.importorskip('rclpy')
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 
-from vlc_evaluation import companion_scoring as scoring  # noqa: E402
 from companion_localizers.conversions import pose_stamped  # noqa: E402
 from vlc_bags.bagio import write_bag  # noqa: E402
+from vlc_evaluation import companion_scoring as scoring  # noqa: E402
 
 EPOCH_NS = 1704067200 * 10 ** 9
 
@@ -22,7 +22,8 @@ def _pose(stamp_ns, x):
 
 def _bag(path, gap_s=(2.0, 2.5)):
     """Truth at 30 Hz moving at 10 m/s for 4 s; RSSI poses at 50 Hz 5 cm ahead, with a
-    gap; dead reckoning poses with a growing error; an INS diagnostics status."""
+    gap; dead reckoning poses with a growing error; an INS diagnostics status.
+    """
     msgs = []
     for k in range(121):
         t = EPOCH_NS + k * 33_333_333

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from vlc_evaluation.benchmarks.compensation import Scenario, departure, score, simulate
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
+from vlc_evaluation.benchmarks.compensation import Scenario, departure, score, simulate
 
 DEG = np.pi / 180.0
 
@@ -66,7 +66,8 @@ def test_cold_start_at_speed_converges():
 
 def test_cold_start_at_speed_with_lamp_heading_aiding_converges_in_seconds():
     """The localizer's heading_aiding (σ 0.3°, 5 Hz, 60 ms late): the minute-long cold
-    start at speed becomes seconds, and the heading pull stays off while aided."""
+    start at speed becomes seconds, and the heading pull stays off while aided.
+    """
     run = simulate(Scenario('cold aided', 'cold_start', 80.0, duration_s=40.0, settle_s=8.0,
                             aiding_period_s=0.2, aiding_sigma_deg=0.3), seed=1)
     s = score(run)
@@ -82,7 +83,8 @@ def test_first_tilt_pull_after_a_cold_start_lands_on_the_truth(seed):
     degrees before the first pull (6 s hold + 4 s window). The pull measures the error
     averaged over its window, half a window behind while the bias ramps it, so it must
     credit the bias with the ramp: a pull that took the mean for the current error left
-    0.5-0.8° of pitch under a claimed 0.05° (seeds 3 and 6)."""
+    0.5-0.8° of pitch under a claimed 0.05° (seeds 3 and 6).
+    """
     run = simulate(Scenario('cold 20', 'cold_start', 20.0, duration_s=25.0, settle_s=11.0,
                             aiding_period_s=0.2, aiding_sigma_deg=0.3), seed=seed)
     m = run['scored']
@@ -99,7 +101,8 @@ def test_first_tilt_pull_after_a_cold_start_lands_on_the_truth(seed):
 def test_aiding_estimates_the_gyro_scale_factor():
     """Seed 7's z gyro reads 4.3 % low (a 4σ draw of the 1 % model): it scales the
     integrated ±6° heading sway. Heading aids (σ 0.3°, 5 Hz) make it observable; the
-    filter learns it from the first aid on. Unaided, the scale states stay out."""
+    filter learns it from the first aid on. Unaided, the scale states stay out.
+    """
     run = simulate(Scenario('cold aided', 'cold_start', 20.0, duration_s=60.0, settle_s=11.0,
                             aiding_period_s=0.2, aiding_sigma_deg=0.3), seed=7)
     f = run['compensator'].filter
@@ -115,7 +118,8 @@ def test_aiding_estimates_the_gyro_scale_factor():
 
 def test_aided_heading_does_not_follow_a_wrong_heading_offset():
     """While lamps aid the heading the heading pull pauses: a track heading offset
-    configured 2° wrong then costs nothing, while unaided it becomes the heading error."""
+    configured 2° wrong then costs nothing, while unaided it becomes the heading error.
+    """
     wrong = AttitudeFilterConfig(heading_offset_rad=AttitudeFilterConfig().heading_offset_rad
                                  + 2.0 * DEG)
     aided = simulate(Scenario('cold aided', 'cold_start', 80.0, duration_s=40.0,

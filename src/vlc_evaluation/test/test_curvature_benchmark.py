@@ -1,5 +1,6 @@
 """Curvature-array correlation on the rig's trajectory and ADIS16488 model
-(``curvature_benchmark.simulate``) and on a recorded bag: every test scores against the truth."""
+(``curvature_benchmark.simulate``) and on a recorded bag: every test scores against the truth.
+"""
 import math
 
 import numpy as np
@@ -15,7 +16,8 @@ DEMO = Alignment.named('curved_demo')
 
 def test_rig_imu_run_is_localised_within_metres():
     """ADIS16488 model (bias, noise, scale) on the rig trajectory with its vibration, a
-    tachometer with +3 % scale error and 0.05 m/s noise, 80 km/h over 750 m of curves."""
+    tachometer with +3 % scale error and 0.05 m/s noise, 80 km/h over 750 m of curves.
+    """
     profile = MotionProfile('constant', start_chainage_m=150.0, speed_mps=80 / 3.6)
     inputs = bench.simulate(DEMO, profile, seed=2, imu_rate_hz=100.0,
                             speed_scale_error=0.03, duration_s=750.0 / (80 / 3.6))

@@ -1,14 +1,15 @@
 """Issue 7 in the evaluation: companion scenarios, lamp outage and forged lamp
 (``evaluation/companions.py``): scenario construction, lamp maps, tables; and one short
-scenario through the real graph with every companion node (about 30 s)."""
+scenario through the real graph with every companion node (about 30 s).
+"""
 import json
 
 import numpy as np
 import pytest
 
-from vlc_evaluation import bag_eval, companions, scenarios
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
+from vlc_evaluation import bag_eval, companions, scenarios
 
 
 def test_companion_scenarios_start_every_method_with_the_tracks_parameters():
@@ -142,7 +143,8 @@ def test_curved_outage_scenario_darkens_curved_track_and_runs_curvature(tmp_path
 
 def _curved_outage_run(s, monkeypatch):
     """A synthetic run of ``s``: the pose error along the track grows to 8 m in the dark
-    stretch, its published σ along the tangent to 4 m; two curvature matches 2 m off."""
+    stretch, its published σ along the tangent to 4 m; two curvature matches 2 m off.
+    """
     alignment = Alignment.named('curved_demo')
     v = s.speed_kmh / 3.6
     truth_t = np.arange(0.0, s.duration_s, 0.02)
@@ -212,8 +214,8 @@ def test_curved_outage_is_scored_along_the_track_with_the_aid(tmp_path, monkeypa
 @pytest.mark.ros
 def test_companion_scenario_through_the_graph(ros_env, tmp_path):
     """One straight 120 km/h run, every method beside the graph, at half real time."""
-    [scenario] = [s for s in companions.companion_scenarios(
-        points_m=(), speeds_kmh=(120,), curved=False)]
+    [scenario] = list(companions.companion_scenarios(points_m=(), speeds_kmh=(120,),
+                                                     curved=False))
     scenario.realtime_factor = 0.5
     results = scenarios.run_protocols({'companions': [scenario]}, tmp_path,
                                       LampMap.load(default_lamp_map_path()), lanes=1,

@@ -1,12 +1,13 @@
 """The evaluation runner on the real graph: one short static scenario (rig, four
 processing nodes, recorder) and the committed sensor bag replayed with bag_player, on
-two lanes; the bags are scored against the truth (about 20 s)."""
+two lanes; the bags are scored against the truth (about 20 s).
+"""
 import pathlib
 
 import pytest
 
-from vlc_evaluation import scenarios
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
+from vlc_evaluation import scenarios
 
 pytestmark = [pytest.mark.graph, pytest.mark.ros]
 BAG = pathlib.Path(__file__).resolve().parents[3] / 'bags' / 'sample_80kmh'

@@ -68,7 +68,8 @@ def test_success_by_distance_bins():
 
 def test_spot_cut_by_the_border_belongs_to_its_lamp():
     """A lamp 0.35 m ahead: its true centre lies 60 px below the image, the decoder's
-    spot (bounding box rows 714-719) is what is left of it inside."""
+    spot (bounding box rows 714-719) is what is left of it inside.
+    """
     box = np.dtype([('uid', '<u4'), ('state', '<u4'), ('left_u', '<f4'), ('left_v', '<f4'),
                     ('right_u', '<f4'), ('right_v', '<f4'), ('left_u_min', '<f4'),
                     ('left_v_min', '<f4'), ('left_u_max', '<f4'), ('left_v_max', '<f4'),

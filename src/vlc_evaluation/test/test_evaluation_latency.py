@@ -27,8 +27,11 @@ def _write_log(path, rows):
 
 def _timeline(tmp_path, rtf=1.0):
     """Frames every 33 ms; decoder 30 ms, spot locator 20 ms after readout, pose 5 ms after
-    the later input; IMU 2 ms in the compensator. Clock ticks every 10 ms (simulated)."""
-    wall = (lambda sim_ns: WALL0 + round(sim_ns / rtf))
+    the later input; IMU 2 ms in the compensator. Clock ticks every 10 ms (simulated).
+    """
+    def wall(sim_ns):
+        return WALL0 + round(sim_ns / rtf)
+
     rows = [('/clock', EPOCH + k * 10 * MS, wall(k * 10 * MS)) for k in range(40)]
     readout = latency.READOUT_S * 1e9
     pairs, lamps = {}, {}

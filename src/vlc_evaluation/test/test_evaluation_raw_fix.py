@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
+from vlc_common.core.camera import StereoRig
+from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
+from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
 from vlc_evaluation import raw_fix
 from vlc_evaluation.bag_eval import RunData
-from vlc_common.core.camera import StereoRig
-from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
-from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
 
 EPOCH_NS = 1_704_067_200_000_000_000
 PAIR_DTYPE = np.dtype([('u_left', '<f8'), ('v_left', '<f8'), ('u_right', '<f8'),

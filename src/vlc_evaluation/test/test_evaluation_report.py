@@ -3,8 +3,8 @@ import json
 
 import pytest
 
-from vlc_evaluation import report, scenarios
 from vlc_common.core import lamp_map
+from vlc_evaluation import report, scenarios
 
 
 def _static_results():

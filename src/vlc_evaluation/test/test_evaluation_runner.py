@@ -56,7 +56,8 @@ def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):
 
 def _pausing_tool(tmp_path, spawner, script):
     """A graph whose executable ``pkg/tool`` waits until signalled: forked from
-    ``spawner`` (``signal.pause``), or, without one, exec'ed from ``script``."""
+    ``spawner`` (``signal.pause``), or, without one, exec'ed from ``script``.
+    """
     graph = graph_runner.GraphRun(tmp_path / 'logs', domain_id=7, install=tmp_path,
                                   spawner=spawner)
     exe = tmp_path / 'lib' / 'pkg' / 'tool'

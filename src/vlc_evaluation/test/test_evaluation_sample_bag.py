@@ -1,5 +1,6 @@
 """The committed sample bag opens (rosbags and an independent MCAP reader) and holds the
-raw sensors and ground truth of a pass by a few lamps."""
+raw sensors and ground truth of a pass by a few lamps.
+"""
 import pathlib
 
 from mcap.reader import make_reader
@@ -8,9 +9,9 @@ import numpy as np
 import pytest
 
 from vlc_bags import bag_summary, open_bag
+from vlc_common.pointcloud import cloud_to_records
 from vlc_evaluation.sample_bag import bag_size_mb, sample_scenario
 from vlc_evaluation.scenarios import GROUND_TRUTH_TOPICS, SENSOR_TOPICS
-from vlc_common.pointcloud import cloud_to_records
 
 BAG = pathlib.Path(__file__).resolve().parents[3] / 'bags' / 'sample_80kmh'
 

@@ -1,6 +1,6 @@
 """localizer_replay: the localizer core (and the attitude loop) re-run offline on a bag."""
-import pytest
 from geometry_msgs.msg import PoseStamped
+import pytest
 from rclpy.serialization import serialize_message
 
 from vlc_bags.bagio import write_bag

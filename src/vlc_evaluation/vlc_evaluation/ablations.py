@@ -45,7 +45,8 @@ GROUP_PREFIX = 'ablations/'
 
 
 def ablation_groups(points_m=STATIC_POINTS_M, trials=2, speeds_kmh=SPEEDS_KMH, runs=2,
-                    cells=4, observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0, variants=VARIANTS):
+                    cells=4, observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0,
+                    variants=VARIANTS):
     """``{'ablations/<variant>/static': [Scenario], 'ablations/<variant>/dynamic': …}``."""
     groups = {}
     for name, _, params in variants:
@@ -82,7 +83,8 @@ def _cm(value):
 
 def ablation_table(results, variants=VARIANTS):
     """Markdown table and figures from ``results`` (``{group: [result]}`` as returned by
-    :func:`scenarios.run_protocols`); rows without results are skipped."""
+    :func:`scenarios.run_protocols`); rows without results are skipped.
+    """
     figures = {}
     for name, label, params in variants:
         static = results.get(f'{GROUP_PREFIX}{name}/static', [])
@@ -94,7 +96,7 @@ def ablation_table(results, variants=VARIANTS):
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
             + ' | dynamic misses |')
     rows = [head, '|' + '---|' * (5 + len(speeds))]
-    for name, fig in figures.items():
+    for fig in figures.values():
         s = fig['static']
         cells = [f'{_cm(fig["dynamic"][v]["max_m"])} / {_cm(fig["dynamic"][v]["mean_m"])}'
                  if v in fig['dynamic'] else '–' for v in speeds]

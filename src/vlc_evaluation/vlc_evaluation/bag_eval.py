@@ -13,11 +13,10 @@ import pathlib
 
 import numpy as np
 
+from vlc_bags.bagio import open_bag
 from vlc_common.core.rotations import matrix_to_rpy, quat_to_matrix
 from vlc_common.pointcloud import cloud_to_records
-
 from vlc_evaluation import metrics
-from vlc_bags.bagio import open_bag
 
 GROUND_TRUTH = '/ground_truth/pose'
 POSE = '/train/pose'
@@ -181,7 +180,8 @@ def score_run(run, lamp_chainages, settle_s=0.0):
 def heading_settling_s(run, t_from, bound_deg=0.2):
     """Time from ``t_from`` until |compensated − true heading| stays within ``bound_deg``
     to the end of the run, s (0: within it all along; None: not within it at the end, or
-    no heading sample after ``t_from``)."""
+    no heading sample after ``t_from``).
+    """
     t, after, _ = heading_errors(run)
     keep = t >= t_from
     t, err = t[keep], np.abs(after[keep])
@@ -242,7 +242,8 @@ def graph_health(run):
 
 def severely_degraded(health):
     """A node fell far behind (not one lost sample): camera lag > 0.2 s, or more than
-    five frames dropped or skipped, or more than five IMU gaps."""
+    five frames dropped or skipped, or more than five IMU gaps.
+    """
     return bool(health.get('camera_lag_max_s', 0.0) > 0.2 or any(
         health.get(k, 0) > 5 for k in ('spot_skipped', 'decoder_skipped',
                                        'compensator_gaps', 'compensator_dropped',
@@ -252,7 +253,8 @@ def severely_degraded(health):
 def heading_series(run, rate_hz=50.0):
     """Heading error after compensation and the uncompensated disturbance (deg), resampled
     at ``rate_hz`` for a plot: dict of lists ``t_s`` (from the first truth), ``after_deg``,
-    ``before_deg``."""
+    ``before_deg``.
+    """
     t, after, before = heading_errors(run)
     if t.size < 2:
         return {'t_s': [], 'after_deg': [], 'before_deg': []}
@@ -274,7 +276,8 @@ PROCESSING_KEYS = {
 
 def processing_times(run):
     """Each node's self-reported processing time per frame (ms) at its last report:
-    ``{node: [median, max or p99]}`` (None where the node did not report one)."""
+    ``{node: [median, max or p99]}`` (None where the node did not report one).
+    """
     out = {}
     for node, keys in PROCESSING_KEYS.items():
         values = []

@@ -19,7 +19,6 @@ import sys
 import time
 
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
-
 from vlc_evaluation import ablations, companions, report, scenarios
 from vlc_evaluation.graph_runner import SPAWN_MODES
 from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
@@ -46,7 +45,8 @@ LATENCY_BAG_S = 8.0
 def latency_replays(out, rescore=False):
     """Replay scenarios at real-time factor 1 of the latency sensor bags, recording the
     bags first (rig and recorder only, slowed to 0.3 so no frame is lost) where missing;
-    a lean recording (no 400 Hz IMU topics)."""
+    a lean recording (no 400 Hz IMU topics).
+    """
     replays = []
     for speed in LATENCY_SPEEDS_KMH:
         bag = out / 'latency_bags' / f'sensors_{speed:03d}kmh'

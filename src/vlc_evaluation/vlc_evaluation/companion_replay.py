@@ -13,16 +13,15 @@ import time
 
 import numpy as np
 
-from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from vlc_common.core.rotations import quat_to_matrix
-from vlc_bags.bagio import open_bag
-from train_localizer.conversions import imu_from_msg, stamp_to_ns
-from train_localizer.core.join import FrameJoiner, JoinConfig
-from vlc_common.pointcloud import cloud_to_records
-
 from companion_localizers.conversions import rssi_readings
 from companion_localizers.core.attitude_prior import fuse_tilt
 from companion_localizers.core.rssi import trilaterate
+from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from train_localizer.conversions import imu_from_msg, stamp_to_ns
+from train_localizer.core.join import FrameJoiner, JoinConfig
+from vlc_bags.bagio import open_bag
+from vlc_common.core.rotations import quat_to_matrix
+from vlc_common.pointcloud import cloud_to_records
 
 NS_PER_S = 1_000_000_000
 FRAME_TOPICS = ('/imu/data', '/vlc/lamps', '/spots/pairs')
@@ -55,7 +54,8 @@ class Replay:
 
 def replay_frames(bag_path, core, join=None):
     """Feed ``/imu/data``, ``/vlc/lamps`` and ``/spots/pairs`` to an ImuDrivenLocalizer,
-    joined as the node joins them (``join``: JoinConfig; the nodes' defaults if None)."""
+    joined as the node joins them (``join``: JoinConfig; the nodes' defaults if None).
+    """
     joiner = FrameJoiner(join or JoinConfig(timeout_s=1.0, max_pending=40))
     stamps, xyz, update_ms, imu_ms = [], [], [], []
 
@@ -91,7 +91,8 @@ def replay_rssi(bag_path, config, lamp_map, use_imu_attitude=True,
                                    4.0 * math.pi / 180.0)):
     """Trilaterate every ``/photodiode/rssi`` sample of a bag as the node does: attitude
     from ``/imu/data`` (tilt fused with the track's) once recorded past the sample's
-    stamp, speed and first start from the last two fixes."""
+    stamp, speed and first start from the last two fixes.
+    """
     attitude = AttitudeBuffer(horizon_s=2.0, max_gap_s=0.1, max_extrapolation_s=0.05)
     pending = []
     stamps, xyz, update_ms = [], [], []

@@ -79,7 +79,8 @@ def load_bag(bag_path, methods=tuple(METHODS)):
 
 def score_poses(pose_t, pose_xyz, truth_t, truth_xyz, settle_s=0.0, max_gap_s=0.1):
     """Scores of one method's poses (dict of plain floats, JSON-ready); see the module
-    docstring. Poses stamped before ``truth_t[0] + settle_s`` are left out."""
+    docstring. Poses stamped before ``truth_t[0] + settle_s`` are left out.
+    """
     out = {'poses': 0, 'availability': 0.0}
     if truth_t.size < 2:
         return out
@@ -112,7 +113,7 @@ def _processing(values):
 
 
 def score_bag(bag_path, methods=tuple(METHODS), settle_s=0.0, max_gap_s=0.1):
-    """dict method → scores (:func:`score_poses` plus ``processing`` from diagnostics)."""
+    """Dict method → scores (:func:`score_poses` plus ``processing`` from diagnostics)."""
     (truth_t, truth_xyz), poses, diag = load_bag(bag_path, methods)
     result = {}
     for method in methods:

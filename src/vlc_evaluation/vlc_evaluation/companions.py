@@ -37,14 +37,19 @@ import pathlib
 
 import numpy as np
 
+from vlc_bags.bagio import open_bag
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.lamp_map import Lamp, LampMap, default_lamp_map_path
 from vlc_common.core.protocol import uid_of
-
 from vlc_evaluation import bag_eval, metrics
-from vlc_bags.bagio import open_bag
-from vlc_evaluation.scenarios import (DYNAMIC_START_M, LAMP_X_M, STATIC_OBSERVE_S, Scenario,
-                        dynamic_settle_s, lead_in_m)
+from vlc_evaluation.scenarios import (
+    DYNAMIC_START_M,
+    LAMP_X_M,
+    STATIC_OBSERVE_S,
+    Scenario,
+    dynamic_settle_s,
+    lead_in_m,
+)
 
 CURVED = 'curved_demo'
 #: (key, label, pose topic, diagnostics status prefix, max_gap_s)
@@ -124,7 +129,8 @@ def configure(scenario, methods=tuple(COMPANION_NODES), alignment='straight',
     """Give ``scenario`` the extra nodes of ``methods`` and the parameters of its track.
 
     ``camera_lamp_map``: the lamp map the rig renders (and the photodiode receives) when it
-    differs from the receivers' (outage, forged lamp); '' = the alignment's map."""
+    differs from the receivers' (outage, forged lamp); '' = the alignment's map.
+    """
     receiver_map = default_lamp_map_path(alignment)
     rig_map = camera_lamp_map or receiver_map
     params = scenario.node_params
@@ -168,7 +174,8 @@ def companion_scenarios(points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH, cells=C
                         observe_s=STATIC_OBSERVE_S, curved_duration_s=CURVED_DURATION_S,
                         curved_speed_kmh=CURVED_SPEED_KMH, seed=1, curved=True):
     """Static and dynamic scenarios, straight and (``curved``) on ``curved_demo``, each
-    with every companion method."""
+    with every companion method.
+    """
     out = []
 
     def add(name, track, motion, **kw):
@@ -206,7 +213,8 @@ def _write_map(lamps, path, base):
 def outage_geometry(half_from_m=HALF_DARK_FROM_M, half_m=HALF_DARK_M, full_m=FULL_DARK_M,
                     lamp_map=None):
     """Dark lamps (chainages) and the stretches: every second lamp dark in
-    [half_from, half_from + half_m), every lamp dark in [that end, + full_m)."""
+    [half_from, half_from + half_m), every lamp dark in [that end, + full_m).
+    """
     lamp_map = lamp_map or LampMap.load(default_lamp_map_path())
     x = np.array(sorted(lamp.track_chainage_m for lamp in lamp_map.lamps))
     full_from = half_from_m + half_m
@@ -244,7 +252,8 @@ def curved_outage_scenario(out_dir, speed_kmh=CURVED_OUTAGE_SPEED_KMH, seed=1,
                            dark_m=CURVED_DARK_M):
     """The lamp-outage run on ``curved_demo`` with ``curvature_node`` beside the graph
     (its speed from ``train/odometry``, as the launch file); every lamp dark over
-    [``dark_from_m``, + ``dark_m``) of chainage; writes the camera's map into ``out_dir``."""
+    [``dark_from_m``, + ``dark_m``) of chainage; writes the camera's map into ``out_dir``.
+    """
     full = LampMap.load(default_lamp_map_path(CURVED))
     geo = outage_geometry(half_from_m=dark_from_m, half_m=0.0, full_m=dark_m, lamp_map=full)
     dark = set(geo['dark_lamps_m'])
@@ -261,7 +270,8 @@ def curved_outage_scenario(out_dir, speed_kmh=CURVED_OUTAGE_SPEED_KMH, seed=1,
 
 def forged_scenarios(out_dir, speed_kmh=FORGED_SPEED_KMH, seed=1):
     """A clean run and the same run with the lamp at ``FORGED_LAMP_X_M`` broadcasting the
-    UID of the lamp at ``FORGED_UID_OF_X_M`` (camera's map only)."""
+    UID of the lamp at ``FORGED_UID_OF_X_M`` (camera's map only).
+    """
     full = LampMap.load(default_lamp_map_path())
     by_x = {lamp.position_m[0]: lamp for lamp in full.lamps}
     victim, source = by_x[FORGED_LAMP_X_M], by_x[FORGED_UID_OF_X_M]
@@ -388,7 +398,8 @@ def score_companions(run, scenario):
 
 def _along_sigma(run, alignment=None):
     """(t, σ along the track (m)) of /train/pose_with_covariance: along map x, or along
-    the tangent of ``alignment`` at the true chainage."""
+    the tangent of ``alignment`` at the true chainage.
+    """
     if alignment is None or alignment.is_straight or run.cov_t.size == 0:
         return run.cov_t, np.sqrt(np.maximum(run.cov_xyz[:, 0, 0], 0.0))
     # stamps outside the truth's span take its end (they are left out of the scores)
@@ -415,7 +426,8 @@ def _aid_counters(run):
 
 def _curvature_matches(run, alignment, lo, hi):
     """Accepted curvature matches (companion/curvature/pose) stamped while the true
-    chainage is in [lo, hi): count, max and mean |match chainage − true chainage|."""
+    chainage is in [lo, hi): count, max and mean |match chainage − true chainage|.
+    """
     t, xyz = _load_poses(run.bag_path, ['/companion/curvature/pose'])[
         '/companion/curvature/pose']
     inside = (t >= run.truth_t[0]) & (t <= run.truth_t[-1])
@@ -555,7 +567,8 @@ def score_forged(run, scenario):
 def score_kind(run, scenario):
     """Scores of a scenario of one of this module's kinds. A bag whose truth stops more
     than a second before the run's end (seen once: the recorder stopped receiving 10 s
-    after closing its first split) is marked degraded, so the runner runs it again."""
+    after closing its first split) is marked degraded, so the runner runs it again.
+    """
     result = {'companions': score_companions, 'outage': score_outage,
               'forged': score_forged}[scenario.kind](run, scenario)
     span = float(run.truth_t[-1] - run.truth_t[0]) if run.truth_t.size else 0.0
@@ -585,7 +598,8 @@ CASES = (('straight', 'static'), ('straight', 'dynamic'), ('curved', 'static'),
 
 def companion_table(results):
     """One Markdown table of every method per case (track × motion), pooled over the
-    case's scenarios; returns (markdown, figures)."""
+    case's scenarios; returns (markdown, figures).
+    """
     figures = {}
     rows = ['| case | method | poses | max (cm) | mean (cm) | 95th pct (cm) | availability '
             '| CPU ms per update (median / tail) | note |',
@@ -653,7 +667,8 @@ def outage_table(results):
                 f'σ peaked at {_m(r["sigma_peak_m"])} m; re-acquired (σ ≤ '
                 f'{_cm(r["reacquire_sigma_level_m"])} cm) at {r["reacquired_at_m"]:.1f} m, '
                 f'{r["reacquired_before_first_lit_lamp_m"]:.1f} m before the first lamp after '
-                f'the outage: within one lamp: **{"yes" if r["reacquired_within_one_lamp"] else "no"}**'
+                f'the outage: within one lamp: '
+                f'**{"yes" if r["reacquired_within_one_lamp"] else "no"}**'
                 f'; max error after re-acquisition {_cm(r["max_after_reacquisition_m"])} cm.')
         else:
             lines.append(f'- {name}: **not re-acquired** before the end of the run.')
@@ -779,7 +794,8 @@ def report_sections(companions=(), outage=(), forged=()):
 def append_to_report(out_dir, companions=(), outage=(), forged=()):
     """Append the sections of the three kinds to ``out_dir/report.md`` and their figures
     and compact results to ``report.json`` (written by :func:`report.write_report`);
-    returns the text appended."""
+    returns the text appended.
+    """
     import json
     out_dir = pathlib.Path(out_dir)
     text, figures = report_sections(companions, outage, forged)
@@ -799,13 +815,15 @@ def append_to_report(out_dir, companions=(), outage=(), forged=()):
     return text
 
 
-DOCS_BEGIN = '<!-- companions:begin (generated by run_evaluation --companions-docs; do not edit) -->'
+DOCS_BEGIN = ('<!-- companions:begin (generated by run_evaluation --companions-docs; '
+              'do not edit) -->')
 DOCS_END = '<!-- companions:end -->'
 
 
 def update_docs(markdown_path, text, command):
     """Put ``text`` (the sections of :func:`report_sections`) between the companion markers
-    of ``markdown_path`` (appended with them when absent), under the command line."""
+    of ``markdown_path`` (appended with them when absent), under the command line.
+    """
     markdown_path = pathlib.Path(markdown_path)
     section = (f'{DOCS_BEGIN}\nGenerated by `{command}` (all figures in its '
                f'`report.json`).\n{text.rstrip()}\n{DOCS_END}')

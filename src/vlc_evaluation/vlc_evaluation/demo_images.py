@@ -16,11 +16,11 @@ import numpy as np
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
 # The graph's camera timing (config/stereo_camera_node.yaml, ARCHITECTURE.md): 21.15 kchip/s
 # lamps seen with a 25 µs row exposure, not the core's paper/protocol defaults.
 DEMO_CONFIG = RendererConfig(chip_rate_hz=21_150.0, exposure_s=25e-6)
-from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
 matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (backend first)

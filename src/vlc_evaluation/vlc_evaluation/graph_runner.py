@@ -128,7 +128,8 @@ def _exec_child_setup(nice):
     """In an exec'ed node before exec: its niceness, and SIGINT back to its default (an
     ignored signal stays ignored across exec, and Python then installs no
     KeyboardInterrupt: a node started by an evaluation running as a script's background
-    job would not stop on the runner's SIGINT)."""
+    job would not stop on the runner's SIGINT).
+    """
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     if nice:
         os.nice(int(nice))
@@ -232,7 +233,8 @@ class GraphRun:
         """Start ``install/lib/<package>/<executable>``; returns its process handle.
 
         ``nice`` > 0 lowers the process's CPU priority (set in the child before it
-        starts a thread, so its DDS threads inherit it)."""
+        starts a thread, so its DDS threads inherit it).
+        """
         exe = self.install / 'lib' / package / executable
         if not exe.exists():
             raise FileNotFoundError(f'{exe} is not installed (run `make setup`)')
@@ -272,7 +274,8 @@ class GraphRun:
 
     def stop_many(self, names, timeout_s=10.0):
         """SIGINT several processes at once, wait for all, SIGKILL the ones still running
-        after ``timeout_s``; returns ``{name: exit code}``."""
+        after ``timeout_s``; returns ``{name: exit code}``.
+        """
         names = [n for n in names if n in self.procs]
         for name in names:
             if self.procs[name].poll() is None:
@@ -296,7 +299,8 @@ class GraphRun:
 
     def wait(self, name, timeout_s, abort=None):
         """Wait for a process to exit by itself; returns its exit code or None (timeout,
-        or ``abort()`` became true)."""
+        or ``abort()`` became true).
+        """
         deadline = time.monotonic() + timeout_s
         while True:
             try:

@@ -26,7 +26,8 @@ ANOMALY = 3
 def _box_distance(rec, side, truth_u, truth_v):
     """Distances (px) from the true centres to the record's spot in one image: to its
     bounding box when the record has one (a spot cut by the border keeps its true centre
-    outside the image, beside the box), else to its centre; inf without that spot."""
+    outside the image, beside the box), else to its centre; inf without that spot.
+    """
     names = rec.dtype.names
     if f'{side}_u_min' in names:
         lo_u, hi_u = rec[f'{side}_u_min'], rec[f'{side}_u_max']

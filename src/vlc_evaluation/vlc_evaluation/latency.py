@@ -38,7 +38,8 @@ def _by_stamp(rows, topic):
 
 def frame_latencies(run, readout_s=READOUT_S):
     """Latency samples of one run, in ms: dict of arrays ``decoder``, ``spot_locator``,
-    ``localizer``, ``exposure_to_pose``, ``imu_compensator`` (empty without a receive log)."""
+    ``localizer``, ``exposure_to_pose``, ``imu_compensator`` (empty without a receive log).
+    """
     empty = {k: [] for k in ('decoder', 'spot_locator', 'localizer', 'exposure_to_pose',
                              'imu_compensator')}
     if run.bag_path is None or not (run.bag_path / RECEIVE_TIMES_FILE).exists():

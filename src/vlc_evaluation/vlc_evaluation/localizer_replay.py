@@ -33,17 +33,15 @@ import sys
 import time
 
 import numpy as np
-
-from vlc_common.core.config_files import config_path
 import yaml
 
 from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
-from vlc_common.core.rotations import quat_to_rpy
-
 from train_localizer import conversions
-from vlc_bags.bagio import open_bag
 from train_localizer.core.join import FrameJoiner
 from train_localizer.core.localizer import Localizer
+from vlc_bags.bagio import open_bag
+from vlc_common.core.config_files import config_path
+from vlc_common.core.rotations import quat_to_rpy
 from vlc_evaluation import metrics
 
 INPUT_TOPICS = ('/imu/data', '/spots/pairs', '/vlc/lamps')
@@ -71,7 +69,8 @@ def load_params(params_file=None, overrides=None):
 
 class _Parameters:
     """Just enough of an rclpy node for a node's ``read_config``: the declared
-    defaults, then a YAML parameter file's values, then overrides."""
+    defaults, then a YAML parameter file's values, then overrides.
+    """
 
     def __init__(self, params_file, overrides=None):
         text = pathlib.Path(params_file).read_text(encoding='utf-8')
@@ -104,9 +103,10 @@ class CompensatorLoop:
     """
 
     def __init__(self, params_file=None, overrides=None):
+        from sensor_msgs.msg import Imu
+
         from imu_compensator.core.compensator import AttitudeCompensator
         from imu_compensator.imu_compensator_node import read_config
-        from sensor_msgs.msg import Imu
         source = _Parameters(params_file or default_params_file('imu_compensator'), overrides)
         self.config = cfg = read_config(source)
         source.check_overrides()
@@ -157,7 +157,7 @@ def replay(bag, params, compensator=None):
     ``compensator``: a :class:`CompensatorLoop` run on ``/imu/data_raw`` in place of the
     recorded ``/imu/data``, with the localizer's heading aids fed back.
     """
-    from train_localizer.train_localizer_node import TrainLocalizerNode    # the node's config builder
+    from train_localizer.train_localizer_node import TrainLocalizerNode  # the node's config builder
     lamp_map, config = TrainLocalizerNode.setup(params)
     loc = Localizer(lamp_map, config)
     joiner = FrameJoiner()

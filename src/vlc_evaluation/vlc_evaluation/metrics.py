@@ -97,7 +97,8 @@ def test_point_instants(t_true, chainage_true, lamp_chainages, distances_m):
 
 def errors_at_instants(instants, t_est, xyz_est, t_true, xyz_true, max_gap_s=0.1):
     """Estimate interpolated at ``instants`` minus truth there; NaN (a miss) where no
-    estimate lies within ``max_gap_s`` on both sides of the instant."""
+    estimate lies within ``max_gap_s`` on both sides of the instant.
+    """
     instants = np.asarray(instants, dtype=float)
     t_est = np.asarray(t_est, dtype=float)
     est = interpolate_positions(instants, t_est, xyz_est)

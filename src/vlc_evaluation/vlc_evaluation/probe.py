@@ -108,7 +108,8 @@ class GraphProbe:
 
     def wait_for_subscribers(self, required, timeout_s, abort=None):
         """Wait until every topic in ``required`` ({topic: count}) has that many
-        subscribers; returns the still-missing ones ({} = ready). ``abort()`` → stop early."""
+        subscribers; returns the still-missing ones ({} = ready). ``abort()`` → stop early.
+        """
         deadline = time.monotonic() + timeout_s
         while True:
             missing = self.missing_subscribers(required)
@@ -162,7 +163,8 @@ class GraphProbe:
 
         With ``quiet_s`` and ``inputs_done()`` true, also stop once no pose has come for
         ``quiet_s`` (a localizer that publishes only at fixes ends before ``stamp_ns``).
-        Returns True when the stamp was reached."""
+        Returns True when the stamp was reached.
+        """
         deadline = time.monotonic() + timeout_s
         while True:
             with self._lock:

@@ -18,11 +18,16 @@ import math
 
 import numpy as np
 
-from vlc_common.core.rotations import quat_slerp, quat_to_matrix
-
-from vlc_evaluation import metrics
-from train_localizer.core.fix import FixConfig, RigGeometry, compute_fix, measurement_time_ns, triangulate
+from train_localizer.core.fix import (
+    FixConfig,
+    RigGeometry,
+    compute_fix,
+    measurement_time_ns,
+    triangulate,
+)
 from vlc_common.core.observation import LampObservation
+from vlc_common.core.rotations import quat_slerp, quat_to_matrix
+from vlc_evaluation import metrics
 
 CONFIRMED = 2                       # vlc/lamps state: CRC-valid UID in the lamp map
 METHODS = ('paper', 'constrained')
@@ -35,7 +40,8 @@ def attitude_at(t_s, imu_t, imu_quat, imu_cov):
 
     Quaternions are interpolated (slerp) between the bracketing samples; outside the
     samples, or without any, identity with a 5° heading σ (the localizer's
-    ``attitude_sigma_unknown_deg``)."""
+    ``attitude_sigma_unknown_deg``).
+    """
     unknown = (np.eye(3), np.diag(np.radians([0.5, 0.5, 5.0]) ** 2))
     if imu_t.size == 0 or t_s < imu_t[0] or t_s > imu_t[-1]:
         return unknown

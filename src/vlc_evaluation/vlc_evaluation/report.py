@@ -39,7 +39,8 @@ def static_table(results):
 
     Rows: the published pose (the product), then the raw single-frame fixes of the same
     trials (no filtering, :mod:`.raw_fix`): the paper's eq. 12–14 chain and this
-    project's track-constrained fix."""
+    project's track-constrained fix.
+    """
     rows = ['| static protocol | max (cm) | mean (cm) | min (cm) | 90th pct (cm) | results | '
             'misses |', '|---|---|---|---|---|---|---|']
     figures = {}
@@ -270,7 +271,8 @@ def latency_table(results):
     """Per node latency (receive log) and self-reported processing time.
 
     Latency means wall time, so only runs at a real-time factor of 1 count when there
-    are any (a slowed-down run gives each node more time per frame)."""
+    are any (a slowed-down run gives each node more time per frame).
+    """
     realtime = [r for r in results if r.get('scenario', {}).get('realtime_factor', 1.0) == 1.0]
     used = realtime or list(results)
     rows = ['| node | measured | median (ms) | p99 (ms) | max (ms) | samples | processing per '
@@ -299,7 +301,8 @@ LATENCY_LOG = 'latency_runs.jsonl'
 def append_latency_run(out_dir, command, figures, after_s):
     """Append one latency-replay run's end-to-end and processing figures (the
     ``figures`` of :func:`latency_table`) to ``out_dir/latency_runs.jsonl``; ``after_s``:
-    wall seconds the same command had run the graph before the replays (the protocols)."""
+    wall seconds the same command had run the graph before the replays (the protocols).
+    """
     e2e = figures.get('exposure_to_pose', {})
     entry = {'finished': time.strftime('%Y-%m-%d %H:%M'), 'command': command,
              'after_min': round(after_s / 60.0, 1), 'samples': e2e.get('count', 0),
@@ -313,7 +316,8 @@ def append_latency_run(out_dir, command, figures, after_s):
 
 def latency_runs_table(out_dir):
     """Every latency-replay run logged in ``out_dir`` (Markdown, '' if none), oldest
-    first, and their entries: the spread of one machine's moments on the same code."""
+    first, and their entries: the spread of one machine's moments on the same code.
+    """
     path = pathlib.Path(out_dir) / LATENCY_LOG
     if not path.exists():
         return '', []
@@ -356,7 +360,8 @@ PHASES = (('start', None, 'started'), ('ready', 'started', 'ready'),
 
 def timing_summary(results):
     """Where the wall time of a run goes (median per phase, s) and each node's CPU
-    (median, s), over the kept attempts of ``results``."""
+    (median, s), over the kept attempts of ``results``.
+    """
     timings = [r['timing'] for r in results if r.get('timing', {}).get('stopped')]
     if not timings:
         return '', {}
@@ -452,7 +457,8 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
     """Write ``report.md``, ``report.json`` and PNGs into ``out_dir``; returns the text.
 
     ``ablations``: optional ``(markdown, figures)`` of :mod:`.ablations`; ``replays``:
-    results of replayed sensor bags."""
+    results of replayed sensor bags.
+    """
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     parts, figures = [f'## {title}'], {}

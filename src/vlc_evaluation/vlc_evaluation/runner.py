@@ -128,7 +128,8 @@ class Lane:
 
     def slow_down(self, severe=True):
         """After a degraded run: halve the pace if nodes fell far behind, else -20 %;
-        the ceiling drops to 90 % of the pace that failed."""
+        the ceiling drops to 90 % of the pace that failed.
+        """
         self.ceiling = max(self.min_pace, min(self.ceiling, 0.9 * self.pace))
         self.pace = max(self.min_pace, (0.5 if severe else 0.8) * self.pace)
 
@@ -153,7 +154,8 @@ FRAME_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
 
 def header_stamped(bag, topic='/stereo/left/image_raw'):
     """True when the bag's timestamps of ``topic`` are its header stamps (a sensor bag
-    of the rig recorded with ``timestamp_source: header``), False for receive times."""
+    of the rig recorded with ``timestamp_source: header``), False for receive times.
+    """
     for _, _, timestamp, data in iter_raw(bag, [topic]):
         return header_stamp_ns(data) == timestamp
     return False
@@ -209,7 +211,9 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
     # participants after some ten scenarios (Fast DDS, shared-memory transport).
     probe = GraphProbe(lane.domain_id)
     timing = {'problems': []}
-    mark = (lambda phase: timing.__setitem__(phase, round(time.monotonic() - t0, 3)))
+    def mark(phase):
+        timing[phase] = round(time.monotonic() - t0, 3)
+
     pace = max(scenario.realtime_factor, 0.05)
     replay = bool(scenario.replay_bag)
 
@@ -275,7 +279,8 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
             if code != 0:
                 timing['problems'].append(f'bag_player exit {code} (limit {limit:.0f} s)')
             mark('camera_done')
-            inputs_done = (lambda: True)
+            def inputs_done():
+                return True
         else:
             probe.open_gate()
             if not probe.wait_for_clock(READY_TIMEOUT_S, abort=died):
@@ -291,7 +296,9 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                           f'(limit {limit:.0f} s)')
             mark('camera_done')
             end_ns = round((lane.epoch_s + scenario.duration_s) * 1e9)
-            inputs_done = (lambda: not graph.running('adis16488_node'))
+            def inputs_done():
+                return not graph.running('adis16488_node')
+
         drain_s = 1.5 + 2.0 * IMU_TAIL_S / pace
         if not probe.wait_for_pose_stamp(end_ns, drain_s, abort=died, quiet_s=POSE_QUIET_S,
                                          inputs_done=inputs_done):

@@ -35,7 +35,8 @@ LOG = logging.getLogger(__name__)
 def sample_scenario(name, speed_kmh=80.0, start_chainage_m=20.5, duration_s=1.5, seed=1,
                     realtime_factor=0.5, compression='zstd'):
     """The sensor-only scenario of the sample bag (rig + recorder, no processing);
-    ``compression`` of the recorder ('zstd' or 'none')."""
+    ``compression`` of the recorder ('zstd' or 'none').
+    """
     return Scenario(name=name, motion_profile='constant', start_chainage_m=start_chainage_m,
                     speed_kmh=speed_kmh, seed=seed, duration_s=duration_s,
                     realtime_factor=realtime_factor, record_sensors=True,

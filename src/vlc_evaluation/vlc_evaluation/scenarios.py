@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from vlc_evaluation import bag_eval, identification, latency, metrics, raw_fix
 from vlc_bags.bagio import bag_time_range
+from vlc_evaluation import bag_eval, identification, latency, metrics, raw_fix
 
 LOG = logging.getLogger(__name__)
 
@@ -148,7 +148,8 @@ def dynamic_settle_s(speed_kmh):
 def dynamic_scenarios(speeds_kmh=(20, 40, 60, 80, 100, 120), runs=10, cells=6, first_seed=1):
     """Constant speed from 0.5 m past the first lamp (the next is in view at once): the
     lead-in (:func:`lead_in_m`, ``SETTLE_CELLS`` of the ``cells`` at 20 km/h, longer
-    faster), then the scored ``cells − SETTLE_CELLS`` lamp cells (10 m each)."""
+    faster), then the scored ``cells − SETTLE_CELLS`` lamp cells (10 m each).
+    """
     out = []
     for v, seed in itertools.product(speeds_kmh, range(first_seed, first_seed + runs)):
         distance = lead_in_m(v) + 10.0 * (cells - SETTLE_CELLS) + 1.0
@@ -164,7 +165,8 @@ def _latency_samples(run):
 
 def score_static(run, scenario, lamp_map):
     """Static result: the last pose published (after ``observe_s``), or a miss; the raw
-    single-frame fixes of the same trial (:mod:`.raw_fix`)."""
+    single-frame fixes of the same trial (:mod:`.raw_fix`).
+    """
     out = {'point_m': scenario.static_point_m, 'seed': scenario.seed, 'error_m': None,
            'along_m': None, 'raw': raw_fix.score_raw_static(run, lamp_map),
            'health': bag_eval.graph_health(run), 'latency_ms': _latency_samples(run),
@@ -184,7 +186,8 @@ def score_static(run, scenario, lamp_map):
 
 def score_dynamic(run, scenario, lamp_map, heading_plot=False):
     """Errors at the 20 test points of each passed cell and over every pose; lamp
-    identification, latency, heading compensation, graph health."""
+    identification, latency, heading compensation, graph health.
+    """
     lamp_chainages = lamp_map.positions[:, 0]
     out = {'speed_kmh': scenario.speed_kmh, 'seed': scenario.seed, 'points': [],
            'health': bag_eval.graph_health(run), 'latency_ms': _latency_samples(run),
@@ -227,7 +230,8 @@ def replay_scenario(bag, realtime_factor=1.0, lean_recording=False):
 
 def score_replay(run, scenario, lamp_map):
     """A replayed sensor bag: every pose from the localizer's first one on (there are no
-    protocol test points in a short pass), the lamps identified, graph health."""
+    protocol test points in a short pass), the lamps identified, graph health.
+    """
     out = {'bag': scenario.replay_bag, 'poses': int(run.pose_t.size),
            'realtime_factor': scenario.realtime_factor,
            'health': bag_eval.graph_health(run), 'latency_ms': _latency_samples(run),
@@ -245,7 +249,8 @@ def score_replay(run, scenario, lamp_map):
 
 def score_scenario(bag, scenario, lamp_map):
     """Score one recorded scenario bag (static or dynamic protocol, or a
-    :mod:`.companions` kind)."""
+    :mod:`.companions` kind).
+    """
     run = bag_eval.load_run(bag)
     if scenario.kind:
         from vlc_evaluation import companions
@@ -265,7 +270,8 @@ def _run_with_retries(scenario, bag_dir, lane, lamp_map, retries):
     """Run a scenario on ``lane``; while a node fell behind (a dropped frame or IMU
     sample, the camera lagging real time) or the graph misbehaved, run it again, slower.
     The kept result says how many attempts it took (``attempts``) and at which real-time
-    factor it ran (``scenario.realtime_factor``)."""
+    factor it ran (``scenario.realtime_factor``).
+    """
     from vlc_evaluation.runner import run_scenario
     for attempt in range(1, retries + 2):
         at_floor = lane.pace <= lane.min_pace

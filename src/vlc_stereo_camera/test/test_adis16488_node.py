@@ -4,23 +4,26 @@ import pathlib
 import time
 import types
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 import pytest
 import rclpy
-import yaml
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
+import yaml
 
 from vlc_stereo_camera import adis16488_node
 from vlc_stereo_camera.adis16488_node import NODE_PARAMETERS, Adis16488Node
-from vlc_stereo_camera.core.imu_model import (Adis16488Model, Adis16488Params, ImuSampler,
-                                              true_imu_signals)
-from vlc_stereo_camera.imu_conversions import (epoch_to_ns, imu_arrays, imu_message,
-                                               sample_stamp_ns)
+from vlc_stereo_camera.core.imu_model import (
+    Adis16488Model,
+    Adis16488Params,
+    ImuSampler,
+    true_imu_signals,
+)
+from vlc_stereo_camera.imu_conversions import epoch_to_ns, imu_arrays, imu_message, sample_stamp_ns
 from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS, ScenarioConfig
 
 EPOCH_NS = 1704067200 * 10 ** 9

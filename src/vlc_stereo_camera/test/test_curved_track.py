@@ -11,21 +11,26 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
-import yaml
 from rclpy.parameter import Parameter
+import yaml
 
-from vlc_stereo_camera.adis16488_node import Adis16488Node
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.camera import StereoRig
-from vlc_common.core.rotations import rpy_to_matrix
-from vlc_stereo_camera.core.imu_model import Adis16488Model, ImuSampler, true_imu_signals
 from vlc_common.core.lamp_map import LampMap
+from vlc_common.core.rotations import rpy_to_matrix
+from vlc_stereo_camera.adis16488_node import Adis16488Node
+from vlc_stereo_camera.core.imu_model import Adis16488Model, ImuSampler, true_imu_signals
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import SensorConfig
-from vlc_stereo_camera.core.trajectory import (GRAVITY_MPS2, MotionProfile, Trajectory,
-                                               Vibration, VibrationConfig)
+from vlc_stereo_camera.core.trajectory import (
+    GRAVITY_MPS2,
+    MotionProfile,
+    Trajectory,
+    Vibration,
+    VibrationConfig,
+)
 from vlc_stereo_camera.imu_conversions import imu_arrays
-from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS
+from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS, ScenarioConfig
 
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config'
 MAPS = pathlib.Path(__file__).resolve().parents[2] / 'vlc_common' / 'config'
@@ -82,7 +87,8 @@ def _curved_trajectory(demo, kind='constant', start=150.0, speed=25.0, scale=1.0
 @pytest.mark.parametrize('kind', ['constant', 'accel_cruise_brake'])
 def test_curved_trajectory_derivatives_are_consistent(demo, kind):
     """Velocity, acceleration and body rate = numerical derivatives of pose (clothoids,
-    arcs, speed changes and the vibration all at once)."""
+    arcs, speed changes and the vibration all at once).
+    """
     traj = _curved_trajectory(demo, kind)
     # Instants away from the motion-segment and element joints (jerk steps there).
     t = np.array([1.0, 4.3, 7.9, 11.1, 14.6, 19.2, 26.7, 33.3, 41.9, 52.4, 66.6])
@@ -141,7 +147,8 @@ def test_yaw_rate_and_centripetal_force_in_the_curve(demo):
 
 def test_imu_model_sees_the_track_yaw_rate(demo):
     """The ADIS16488 sampler takes the kinematics from the trajectory: in the arc the
-    mean measured gyro z is κ·v (plus the sensor's bias and scale error)."""
+    mean measured gyro z is κ·v (plus the sensor's bias and scale error).
+    """
     traj = _curved_trajectory(demo, speed=20.0, start=300.0, scale=0.0)
     model = Adis16488Model(200.0, 3)
     batch = ImuSampler(traj, model).next(1600)     # 8 s, s = 300 … 460 (arc)
@@ -183,7 +190,8 @@ def test_curved_frame_shows_the_lamps_where_the_camera_model_projects_them(
         demo, curved_map, chainage_m, lamp_id):
     """Standing in the R = 400 m (left), 600 m (right) and 300 m (right) arcs: every
     rendered lamp's truth is the StereoRig projection of its map position, and the
-    rendered spot (its coverage centroid and area) is the projected disc."""
+    rendered spot (its coverage centroid and area) is the projected disc.
+    """
     traj = Trajectory(MotionProfile('stationary', start_chainage_m=chainage_m),
                       Vibration(VibrationConfig(enabled=False)), demo)
     renderer = StereoRenderer(_geometry_only(), curved_map, traj)
@@ -263,15 +271,16 @@ def test_adis16488_node_rejects_an_unknown_alignment(imu_node):
 def test_stereo_camera_node_ground_truth_follows_the_curve(ros_env):
     """stereo_camera_node with alignment=curved_demo and the curved map: the truth pose
     is the alignment's (position, heading), and the lamp ahead in the R = 400 m arc is
-    in the truth spots with its rectified geometry."""
+    in the truth spots with its rectified geometry.
+    """
     from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image, PointCloud2
 
-    from vlc_stereo_camera import conversions
     from vlc_common.core.rotations import quat_to_matrix
+    from vlc_stereo_camera import conversions
     from vlc_stereo_camera.stereo_camera_node import StereoCameraNode
 
     ctx = rclpy.Context()
@@ -329,7 +338,8 @@ def test_stereo_camera_node_ground_truth_follows_the_curve(ros_env):
 def test_visibility_window_on_curves(demo, curved_map, name, lamp_chainage_m, near_m, far_m):
     """Lamp centre inside both images at rest (documented in docs/arch/vlc_stereo_camera.md):
     the wall curving toward the camera (left curves) lengthens the far limit, away from it
-    (right curves) shortens it; the near limit (bottom image edge) does not change."""
+    (right curves) shortens it; the near limit (bottom image edge) does not change.
+    """
     lamp = curved_map.by_uid(2 << 12 | int(lamp_chainage_m / 10))
     rig = StereoRig()
     d = np.arange(0.0, 12.0, 0.01)
@@ -345,3 +355,26 @@ def test_visibility_window_on_curves(demo, curved_map, name, lamp_chainage_m, ne
     assert inside.min() == pytest.approx(near_m, abs=0.011)
     assert inside.max() == pytest.approx(far_m, abs=0.011)
     assert np.all(np.diff(inside) < 0.011)              # one contiguous window
+
+
+# --- rig parameter -------------------------------------------------------------------
+
+def _scenario(**overrides):
+    values = {name: default for name, default, _ in SCENARIO_PARAMETERS}
+    values.update(overrides)
+    return ScenarioConfig(**values)
+
+
+def test_rig_parameter_selects_the_alignment():
+    assert {n: d for n, d, _ in SCENARIO_PARAMETERS}['alignment'] == 'straight'
+    assert _scenario().trajectory().alignment.is_straight
+    traj = _scenario(alignment='curved_demo', start_chainage_m=380.0,
+                     motion_profile='stationary', vibration_enabled=False).trajectory()
+    s = traj.sample([0.0])
+    expected = Alignment.named('curved_demo').evaluate(380.0)
+    assert s.position_m[0, :2] == pytest.approx([expected.x_m[0], expected.y_m[0]])
+    assert s.rpy_rad[0, 2] == pytest.approx(expected.heading_rad[0])
+    assert _scenario(alignment='curved_demo').default_lamp_map_path().endswith(
+        'lamp_map_curved_demo.yaml')
+    with pytest.raises(ValueError, match='unknown alignment'):
+        _scenario(alignment='zigzag').trajectory()

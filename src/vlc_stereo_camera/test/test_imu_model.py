@@ -5,12 +5,19 @@ import numpy as np
 import pytest
 
 from vlc_stereo_camera.core import allan
-from vlc_stereo_camera.core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ,
-                                              Adis16488Model, Adis16488Params, ImuSampler,
-                                              bias_bank_sigma, characterise,
-                                              lever_arm_specific_force, true_imu_signals)
-from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                               VibrationConfig)
+from vlc_stereo_camera.core.imu_model import (
+    DEG,
+    GRAVITY_MPS2,
+    MAX_RATE_HZ,
+    Adis16488Model,
+    Adis16488Params,
+    ImuSampler,
+    bias_bank_sigma,
+    characterise,
+    lever_arm_specific_force,
+    true_imu_signals,
+)
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 DATASHEET = Adis16488Params()
 REST_F = np.array([0.0, 0.0, GRAVITY_MPS2])

@@ -2,8 +2,13 @@
 import numpy as np
 import pytest
 
-from vlc_stereo_camera.core.trajectory import (GRAVITY_MPS2, MotionProfile, Trajectory,
-                                               Vibration, VibrationConfig)
+from vlc_stereo_camera.core.trajectory import (
+    GRAVITY_MPS2,
+    MotionProfile,
+    Trajectory,
+    Vibration,
+    VibrationConfig,
+)
 from vlc_stereo_camera.core.transmitter import LampWaveform
 
 

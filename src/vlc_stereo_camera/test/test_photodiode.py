@@ -5,12 +5,16 @@ import numpy as np
 import pytest
 
 from vlc_common.core.lamp_map import Lamp, LampMap, straight_tunnel_map
-from vlc_common.core.optical_channel import (BOLTZMANN_J_PER_K, ELECTRON_CHARGE_C,
-                                             PhotodiodeConfig, channel_gain,
-                                             noise_variance_a2, photodiode_pose)
+from vlc_common.core.optical_channel import (
+    BOLTZMANN_J_PER_K,
+    ELECTRON_CHARGE_C,
+    PhotodiodeConfig,
+    channel_gain,
+    noise_variance_a2,
+    photodiode_pose,
+)
 from vlc_stereo_camera.core.photodiode import Photodiode
-from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                               VibrationConfig)
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 STILL = Vibration(VibrationConfig(enabled=False))
 

@@ -2,22 +2,22 @@
 import pathlib
 import time
 
+from builtin_interfaces.msg import Time
 import numpy as np
 import pytest
 import rclpy
-import yaml
-from builtin_interfaces.msg import Time
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import PointCloud2
+import yaml
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_stereo_camera.core.photodiode import Photodiode
 from vlc_common.photodiode_channel import CHANNEL_PARAMETERS, photodiode_config
-from vlc_stereo_camera.photodiode_node import NODE_PARAMETERS, PhotodiodeNode
 from vlc_common.pointcloud import cloud_to_records
+from vlc_stereo_camera.core.photodiode import Photodiode
+from vlc_stereo_camera.photodiode_node import NODE_PARAMETERS, PhotodiodeNode
 
 EPOCH_NS = 1704067200 * 10 ** 9
 CONFIG = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'photodiode_node.yaml'

@@ -9,11 +9,10 @@ import numpy as np
 import pytest
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path, straight_tunnel_map
-from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_common.core.optical_channel import lambertian_order
+from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
-from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                               VibrationConfig)
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 LAMP_X_M = 10.0          # first lamp of the shipped map (UID 4097)
 

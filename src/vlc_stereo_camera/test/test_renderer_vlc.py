@@ -10,8 +10,7 @@ import pytest
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig
-from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                               VibrationConfig)
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 HEADER = [1, 1, 1, 0, 0, 0]
 
@@ -98,7 +97,8 @@ def row_profile(image, truth, half_width_px=3, centres=None):
 
 def test_row_levels_follow_the_chip_waveform(lamp_map):
     """Unsaturated near lamp: each row's level = mean of the protocol waveform over
-    that row's exposure window, at the given row time."""
+    that row's exposure window, at the given row time.
+    """
     flux = 0.5 * OpticsConfig().luminous_flux_lm            # on ≈ 0.6 full well
     steady = near_lamp_renderer(lamp_map, 2.0, optics=OpticsConfig(luminous_flux_lm=flux),
                                 optics_psf=False, lamp_modulation=False, sensor_noise=False)
@@ -129,7 +129,8 @@ def test_row_levels_follow_the_chip_waveform(lamp_map):
 def test_blind_multi_frame_decode_of_a_near_lamp(lamp_map):
     """Default photometry (saturating "on" chips, PSF, halo, noise): threshold the rows,
     fold their exposure mid-times over the packet period, search the unknown phase and
-    chip-rate error, and decode the UID with the CRC."""
+    chip-rate error, and decode the UID with the CRC.
+    """
     renderer = near_lamp_renderer(lamp_map, 2.0)
     cfg = renderer.config
     times, bits = [], []

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from vlc_stereo_camera import conversions
 from vlc_common.core.camera import CameraIntrinsics
+from vlc_stereo_camera import conversions
 from vlc_stereo_camera.core.renderer import LampTruth, RendererConfig
 
 

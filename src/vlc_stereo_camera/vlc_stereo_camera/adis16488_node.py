@@ -23,15 +23,15 @@ subscribers. Invalid parameters fail at start-up with a message and exit code 2 
 ``stereo_camera_node``). Parameters: ``config/adis16488_node.yaml`` and the shared
 ``config/rig.yaml``.
 """
+from dataclasses import dataclass
 import math
 import sys
 import time
-from dataclasses import dataclass
 
-import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
 from rcl_interfaces.msg import ParameterType
+import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -40,12 +40,23 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
-from vlc_stereo_camera.core.imu_model import (DEG, GRAVITY_MPS2, MAX_RATE_HZ, Adis16488Model,
-                             Adis16488Params, ImuSampler)
-from vlc_stereo_camera.imu_conversions import (epoch_to_ns, imu_message, ns_to_time, sample_stamp_ns,
-                              set_imu_sample)
-from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 from vlc_common.parameters import descriptor as _desc
+from vlc_stereo_camera.core.imu_model import (
+    DEG,
+    GRAVITY_MPS2,
+    MAX_RATE_HZ,
+    Adis16488Model,
+    Adis16488Params,
+    ImuSampler,
+)
+from vlc_stereo_camera.imu_conversions import (
+    epoch_to_ns,
+    imu_message,
+    ns_to_time,
+    sample_stamp_ns,
+    set_imu_sample,
+)
+from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 
 #: Samples are generated in blocks of this much simulated time and published from the
 #: block as they fall due (one trajectory evaluation per block instead of per tick); it

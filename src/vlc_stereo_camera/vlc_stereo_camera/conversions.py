@@ -25,10 +25,10 @@ field                   type     offset  meaning
 """
 import array
 
-import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
@@ -104,7 +104,8 @@ def pose_msg(position_m, quat_xyzw, hdr):
 
 def odometry_msg(frame, hdr, child_frame_id):
     """Ground-truth nav_msgs/Odometry of base_link: pose in ``hdr.frame_id``, twist in
-    ``child_frame_id`` axes (covariances zero: exact truth)."""
+    ``child_frame_id`` axes (covariances zero: exact truth).
+    """
     msg = Odometry(header=hdr, child_frame_id=child_frame_id)
     msg.pose.pose = pose_msg(frame.base_position_m, frame.base_quat_xyzw, hdr).pose
     v, w = frame.base_velocity_body_mps, frame.base_angular_velocity_body_rps

@@ -28,15 +28,15 @@ are published, then the node exits 0. Invalid parameters: ``[FATAL] invalid
 parameter: …`` and exit code 2. Parameters: ``config/photodiode_node.yaml`` and the
 shared ``config/rig.yaml``.
 """
+from dataclasses import dataclass
 import math
 import sys
 import time
-from dataclasses import dataclass
 
-import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
 from rcl_interfaces.msg import ParameterType
+import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -49,11 +49,11 @@ from std_msgs.msg import Header
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.optical_channel import PhotodiodeConfig
 from vlc_common.core.records import RSSI_DTYPE
+from vlc_common.parameters import descriptor as _desc
 from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
+from vlc_common.pointcloud import records_to_cloud
 from vlc_stereo_camera.core.photodiode import Photodiode
 from vlc_stereo_camera.imu_conversions import epoch_to_ns, ns_to_time, sample_stamp_ns, time_to_ns
-from vlc_common.parameters import descriptor as _desc
-from vlc_common.pointcloud import records_to_cloud
 from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 
 #: Exit code of an invalid configuration (as the other rig nodes).

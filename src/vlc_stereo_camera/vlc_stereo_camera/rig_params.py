@@ -15,9 +15,8 @@ from rcl_interfaces.msg import ParameterType
 
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.lamp_map import default_lamp_map_path
-from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 from vlc_common.parameters import descriptor as _desc
-
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
 SCENARIO_PARAMETERS = (
     # name, default, descriptor
@@ -26,7 +25,8 @@ SCENARIO_PARAMETERS = (
     ('epoch_s', 1704067200.0, _desc('Simulated clock epoch: ROS time of t = 0, seconds '
                                     '(2024-01-01T00:00:00Z).', 0.0, 4.0e9)),
     ('motion_profile', 'constant', _desc('Train motion: stationary, constant or '
-                                         'accel_cruise_brake.', ptype=ParameterType.PARAMETER_STRING)),
+                                         'accel_cruise_brake.',
+                                         ptype=ParameterType.PARAMETER_STRING)),
     ('start_chainage_m', 0.0, _desc('Chainage of base_link at t = 0, metres.', -1.0e5, 1.0e6)),
     ('speed_kmh', 20.0, _desc('Constant or cruise speed, km/h.', 0.0, 200.0)),
     ('accel_mps2', 1.0, _desc('Acceleration of accel_cruise_brake, m/s^2.', 0.01, 3.0)),

@@ -54,14 +54,14 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from vlc_stereo_camera import conversions
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import keep_large_buffers
+from vlc_stereo_camera import conversions
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
-from vlc_common.process import keep_large_buffers
 from vlc_stereo_camera.rig_params import declare_scenario_parameters
-from vlc_common.parameters import descriptor as _desc
 
 EXIT_INVALID_CONFIG = 2
 

@@ -1,7 +1,8 @@
 """The messages the perception nodes would publish for the observations of
 :class:`~vlc_stereo_camera.core.upstream.SensorSimulator`: ``imu/data``, ``spots/pairs``
 and ``vlc/lamps`` in the layouts of :mod:`vlc_common.core.records`, for tests and replays
-of the localizer without images."""
+of the localizer without images.
+"""
 import math
 
 import numpy as np
@@ -42,7 +43,8 @@ def spots_msg(stamp_ns, observations, frame_id=CAMERA_FRAME):
 def lamps_msg(stamp_ns, observations, frame_id=CAMERA_FRAME):
     """``vlc/lamps`` of one frame's observations: confirmed (state 2) where the UID is
     known, partial (1) otherwise; the decoder's centre is coarser than the spot
-    locator's (+0.6, −0.4 px in the left image)."""
+    locator's (+0.6, −0.4 px in the left image).
+    """
     rec = np.zeros(len(observations), dtype=LAMP_DTYPE)
     for i, o in enumerate(observations):
         rec[i]['track_id'] = i + 1

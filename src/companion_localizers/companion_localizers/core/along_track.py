@@ -24,8 +24,15 @@ import itertools
 
 import numpy as np
 
-from train_localizer.core.kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig,
-                                         innovation, predict, update)
+from train_localizer.core.kalman import (
+    H_CHAINAGE,
+    H_SPEED,
+    FilterState,
+    KalmanConfig,
+    innovation,
+    predict,
+    update,
+)
 
 __all__ = ['AlongTrackFilter', 'FilterSettings', 'H_CHAINAGE', 'H_SPEED']
 
@@ -142,7 +149,8 @@ class AlongTrackFilter:
     def state_at(self, t_ns):
         """State at ``t_ns`` (within the history; beyond the newest sample it is predicted
         with the newest acceleration input, measurements after the newest step aside).
-        Returns None before the first sample or for a time older than the history."""
+        Returns None before the first sample or for a time older than the history.
+        """
         t_ns = int(t_ns)
         if not self._t or t_ns < self._t[0]:
             return None
@@ -157,7 +165,8 @@ class AlongTrackFilter:
 
     def innovation_at(self, t_ns, h, z, r):
         """(innovation, its variance) of a measurement at ``t_ns`` against the state
-        there, without applying it; None when the state is unknown there."""
+        there, without applying it; None when the state is unknown there.
+        """
         state = self.state_at(t_ns)
         if state is None:
             return None
@@ -176,7 +185,8 @@ class AlongTrackFilter:
     def _propagate(self, state, t_from_ns, t_to_ns, accel, bias_q):
         """From ``state`` at ``t_from`` to ``t_to`` with ``accel``, applying the stored
         measurements in (t_from, t_to]; a first step (t_from == t_to) applies the ones
-        at that instant."""
+        at that instant.
+        """
         lo = t_from_ns if t_from_ns < t_to_ns else t_from_ns - 1
         cur, t_cur = state, t_from_ns
         for m in self._measurements_in(lo, t_to_ns):

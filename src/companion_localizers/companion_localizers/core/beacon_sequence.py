@@ -1,4 +1,4 @@
-"""Beacon-sequence plausibility: is a lamp's ID where the distance travelled says it is?
+"""Beacon-sequence plausibility: is a lamp's ID where the distance travelled says it is.
 
 A train passes the coded beacons (lamps) of its line in map order. Each sighting of a
 beacon, with the train's odometer reading (a distance along the track from any

@@ -213,7 +213,8 @@ class CurvatureConfig:
     @property
     def buffer_m(self):
         """Real-time array kept: the matched window plus the largest smoothing margin
-        (3σ) at each end, m."""
+        (3σ) at each end, m.
+        """
         return self.window_m + 6.0 * self.max_smoothing_sigma_m
 
     @property
@@ -616,7 +617,7 @@ def chainage_sigma(spread_m, matched_length_m, config):
 
 
 def _fisher_z(rho):
-    """atanh ρ, finite at ρ = ±1."""
+    """Atanh ρ, finite at ρ = ±1."""
     return float(np.arctanh(np.clip(rho, -1.0 + 1e-12, 1.0 - 1e-12)))
 
 
@@ -752,6 +753,7 @@ class CurvatureLocalizer:
 
     def pose(self, chainage_m):
         """(position (3,), yaw rad) of base_link in map at a chainage: the alignment's
-        centreline at rail level, heading along the track."""
+        centreline at rail level, heading along the track.
+        """
         p = self.alignment.evaluate(chainage_m)
         return np.array([p.x_m[0], p.y_m[0], 0.0]), float(p.heading_rad[0])

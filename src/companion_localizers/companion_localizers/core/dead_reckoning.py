@@ -30,11 +30,10 @@ import math
 
 import numpy as np
 
-from train_localizer.core.fix import RigGeometry, measurement_time_ns
-
 from companion_localizers.core.along_track import H_CHAINAGE
-from companion_localizers.core.imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
+from companion_localizers.core.imu_driven import NS_PER_S, ImuDrivenConfig, ImuDrivenLocalizer
 from companion_localizers.core.ranging import RangingConfig, range_to_lamp
+from train_localizer.core.fix import RigGeometry, measurement_time_ns
 
 
 @dataclass
@@ -63,7 +62,8 @@ class ImageStillConfig:
 class ImageStillness:
     """The train stands when every lamp spot stays within ``max_motion_px`` over the
     window (the standing platform does not vibrate; at walking pace a lamp 5 m ahead
-    moves several pixels in 0.3 s)."""
+    moves several pixels in 0.3 s).
+    """
 
     def __init__(self, config=None):
         self.config = config or ImageStillConfig()
@@ -146,7 +146,8 @@ class DeadReckoningConfig(ImuDrivenConfig):
 @dataclass
 class LandmarkEvent:
     """A landmark reset: UID, measurement instant (ns), chainage (m), its 1σ (m), and
-    the dead-reckoned chainage just before the reset (m)."""
+    the dead-reckoned chainage just before the reset (m).
+    """
 
     uid: int
     t_ns: int
@@ -186,7 +187,8 @@ class DeadReckoning(ImuDrivenLocalizer):
     def zero_velocity_allowed(self, t_ns, state):
         """Still lamp spots prove a standstill whatever the filter's speed (a moving
         train moves every lamp by pixels in 0.3 s): the zero-velocity correction of
-        the scheme, also at a cold start; the IMU's evidence as in the base class."""
+        the scheme, also at a cold start; the IMU's evidence as in the base class.
+        """
         return (self.image_still.still_at(t_ns)
                 or super().zero_velocity_allowed(t_ns, state))
 

@@ -22,14 +22,12 @@ import time
 
 import numpy as np
 
-from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from vlc_common.core.rotations import quat_to_matrix
-from train_localizer.core.standstill import StandstillConfig, StandstillDetector
-
-from vlc_common.core.observation import ImuSample
-
 from companion_localizers.core.along_track import H_SPEED, AlongTrackFilter, FilterSettings
 from companion_localizers.core.attitude_prior import fuse_tilt
+from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from train_localizer.core.standstill import StandstillConfig, StandstillDetector
+from vlc_common.core.observation import ImuSample
+from vlc_common.core.rotations import quat_to_matrix
 
 NS_PER_S = 1_000_000_000
 GRAVITY_MPS2 = 9.80665
@@ -186,7 +184,8 @@ class ImuDrivenLocalizer:
 
     def accel_input(self, accel_x):
         """Filter input over the step ending at this sample: trapezoid of the last two
-        samples (subclasses may smooth further)."""
+        samples (subclasses may smooth further).
+        """
         prev = self._prev_accel if self._prev_accel is not None else accel_x
         self._prev_accel = accel_x
         return 0.5 * (prev + accel_x)
@@ -218,7 +217,8 @@ class ImuDrivenLocalizer:
         """A zero-velocity update at ``t_ns``? The IMU's standstill evidence is trusted only
         while the filter's speed is near zero and well known: a platform without
         vibration (a rig with it switched off) would look standing at any constant
-        speed (train_localizer's rule). Subclasses may add unambiguous evidence."""
+        speed (train_localizer's rule). Subclasses may add unambiguous evidence.
+        """
         cfg = self.config.standstill
         return self.still and StandstillDetector.speed_allows_update(state.x[1], state.P[1, 1],
                                                                     cfg)
@@ -256,7 +256,8 @@ class ImuDrivenLocalizer:
 
     def estimate_at(self, t_ns):
         """PoseEstimate at ``t_ns`` if chainage and speed are known well enough there, else
-        None."""
+        None.
+        """
         state = self.filter.state_at(t_ns)
         if (state is None or not state.P[0, 0] <= self.config.max_sigma_m ** 2
                 or not state.P[1, 1] <= self.config.max_speed_sigma_mps ** 2):
@@ -297,7 +298,8 @@ class ImuDrivenLocalizer:
 
     def take_results(self):
         """Results of :meth:`process_frame` since the last call, in processing order
-        (frames processed when an IMU sample released them included)."""
+        (frames processed when an IMU sample released them included).
+        """
         out, self._results = self._results, []
         return out
 

@@ -28,13 +28,11 @@ import math
 
 import numpy as np
 
-from train_localizer.core.fix import RigGeometry, measurement_time_ns
-
 from companion_localizers.core.along_track import H_CHAINAGE, H_SPEED
 from companion_localizers.core.beacon_sequence import BeaconSequenceChecker, BeaconSequenceConfig
-from companion_localizers.core.imu_driven import ImuDrivenConfig, ImuDrivenLocalizer, NS_PER_S
+from companion_localizers.core.imu_driven import NS_PER_S, ImuDrivenConfig, ImuDrivenLocalizer
 from companion_localizers.core.ranging import RangingConfig, range_to_lamp
-
+from train_localizer.core.fix import RigGeometry, measurement_time_ns
 
 
 @dataclass

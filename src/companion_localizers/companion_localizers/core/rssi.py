@@ -434,7 +434,7 @@ class _Problem:
 
 
 def _cross(a, b):
-    """a × b for a (3,) and rows b (n, 3) (numpy.cross is slow on small arrays)."""
+    """A × b for a (3,) and rows b (n, 3) (numpy.cross is slow on small arrays)."""
     return np.stack([a[1] * b[:, 2] - a[2] * b[:, 1], a[2] * b[:, 0] - a[0] * b[:, 2],
                      a[0] * b[:, 1] - a[1] * b[:, 0]], axis=1)
 
@@ -495,7 +495,7 @@ def _solve_track(problem):
 
 
 def _mirror_ambiguous(solution, problem, pd_at):
-    """Can the other lamps tell the solution from its mirror about the nearest lamp?
+    """Whether the other lamps can tell the solution from its mirror about the nearest lamp.
 
     The nearest lamp fixes |s − x_lamp| (its abeam point) but not the side; the mirror
     position lies ``Δ = 2·|s − x_abeam|`` away. The other lamps' information about

@@ -15,8 +15,14 @@ import math
 
 import numpy as np
 
-from vlc_common.core.rotations import (quat_conjugate, quat_multiply, quat_normalize,
-                                            quat_slerp, quat_to_rotvec, quat_to_rpy)
+from vlc_common.core.rotations import (
+    quat_conjugate,
+    quat_multiply,
+    quat_normalize,
+    quat_slerp,
+    quat_to_rotvec,
+    quat_to_rpy,
+)
 
 _LOG = logging.getLogger(__name__)
 

@@ -47,14 +47,19 @@ a few µs); the covariance is propagated and the updates applied once per
 ``update_period_s``, using the exact composition of the per-sample transition
 matrices (their attitude–bias blocks add up).
 """
-from dataclasses import dataclass
 from collections import deque
+from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from vlc_common.core.rotations import (quat_from_rotvec, quat_from_rpy, quat_multiply,
-                                            quat_normalize, quat_to_matrix)
+from vlc_common.core.rotations import (
+    quat_from_rotvec,
+    quat_from_rpy,
+    quat_multiply,
+    quat_normalize,
+    quat_to_matrix,
+)
 
 GRAVITY_MPS2 = 9.80665
 #: Error state: attitude about the map axes (3), gyro bias (3), gyro scale factors (3).
@@ -533,7 +538,8 @@ class AttitudeFilter:
 
     def _pull_axes(self):
         """Map-frame axes (3, 3) of a roll, a pitch and a heading increment of the current
-        R = Rz·Ry·Rx: Rz·Ry·x̂, Rz·ŷ, ẑ (exact for this parametrisation)."""
+        R = Rz·Ry·Rx: Rz·Ry·x̂, Rz·ŷ, ẑ (exact for this parametrisation).
+        """
         _, pitch, yaw = _rpy_of(*self._q)
         sy, cy = math.sin(yaw), math.cos(yaw)
         sp, cp = math.sin(pitch), math.cos(pitch)
@@ -617,13 +623,15 @@ class AttitudeFilter:
         """At the first external aiding: the scale factors become states, with the
         consider covariance ``_P_true`` (their prior, propagated and updated alongside P)
         as the filter's covariance from then on. Only aiding observes them, and an
-        unaided filter keeps exactly its attitude-and-bias estimates."""
+        unaided filter keeps exactly its attitude-and-bias estimates.
+        """
         if self._P_true is not None:
             self.P, self._P_true = self._P_true, None
 
     def _map_covariances(self, step):
         """P ← step(P), and the same for the consider covariance while it is kept
-        (see :meth:`initialize`); both symmetrised."""
+        (see :meth:`initialize`); both symmetrised.
+        """
         p = step(self.P)
         self.P = 0.5 * (p + p.T)
         if self._P_true is not None:

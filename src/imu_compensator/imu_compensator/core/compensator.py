@@ -25,10 +25,16 @@ import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
 from imu_compensator.core.attitude_filter import AttitudeFilter, AttitudeFilterConfig
-from vlc_common.core.rotations import (quat_conjugate, quat_from_rpy, quat_multiply,
-                                            quat_normalize, quat_to_matrix, quat_to_rotvec,
-                                            quat_to_rpy)
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig, ZeroVelocityDetector
+from vlc_common.core.rotations import (
+    quat_conjugate,
+    quat_from_rpy,
+    quat_multiply,
+    quat_normalize,
+    quat_to_matrix,
+    quat_to_rotvec,
+    quat_to_rpy,
+)
 
 _LOG = logging.getLogger(__name__)
 

@@ -35,11 +35,9 @@ import math
 
 import numpy as np
 
-from vlc_common.core.camera import StereoRig, mount_rotation
-
-from vlc_common.core.observation import NS_PER_S
 from train_localizer.core.track import Track
-
+from vlc_common.core.camera import StereoRig, mount_rotation
+from vlc_common.core.observation import NS_PER_S
 
 
 def skew(v):

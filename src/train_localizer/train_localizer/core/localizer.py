@@ -40,17 +40,36 @@ import math
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
-from vlc_common.core.rotations import quat_to_matrix
-from vlc_common.core.rotations import matrix_to_quat_xyzw
-
-from train_localizer.core.fix import (FixConfig, RigGeometry, compute_fix, exp_so3, measurement_time_ns,
-                  triangulate, vision_attitude)
-from train_localizer.core.integrity import (Contradiction, IntegrityConfig, IntegrityMonitor, Level,
-                        mahalanobis2, select_association)
-from train_localizer.core.kalman import (H_CHAINAGE, H_SPEED, FilterState, KalmanConfig, initial_state,
-                     innovation, predict, update)
-from vlc_common.core.observation import NS_PER_S
+from train_localizer.core.fix import (
+    FixConfig,
+    RigGeometry,
+    compute_fix,
+    exp_so3,
+    measurement_time_ns,
+    triangulate,
+    vision_attitude,
+)
+from train_localizer.core.integrity import (
+    Contradiction,
+    IntegrityConfig,
+    IntegrityMonitor,
+    Level,
+    mahalanobis2,
+    select_association,
+)
+from train_localizer.core.kalman import (
+    H_CHAINAGE,
+    H_SPEED,
+    FilterState,
+    KalmanConfig,
+    initial_state,
+    innovation,
+    predict,
+    update,
+)
 from train_localizer.core.standstill import StandstillConfig, StandstillDetector
+from vlc_common.core.observation import NS_PER_S
+from vlc_common.core.rotations import matrix_to_quat_xyzw, quat_to_matrix
 
 _DEG = math.pi / 180.0
 _GRAVITY_MPS2 = 9.80665
@@ -888,7 +907,8 @@ class Localizer:
         uncorrelated with the rest; ``keep_speed`` keeps the speed and bias covariance,
         else their variances are raised to at least ``reinit_speed_sigma_mps`` and
         ``initial_bias_sigma_mps2`` (a state that far off had its speed wrong too).
-        Returns the state it replaced."""
+        Returns the state it replaced.
+        """
         old = self._x[i]
         P = np.zeros((3, 3))
         P[0, 0] = var_m2
@@ -976,7 +996,8 @@ class Localizer:
         """After a cold start, hold the output until the chainage 1σ is below
         ``max_sigma_m`` (a single-frame start does not know the speed yet); from then on
         every pose is published, with its covariance and the integrity state saying how
-        good it is."""
+        good it is.
+        """
         if not self._publishing:
             state = self._state_at(t)
             sigma2 = state.P[0, 0] + self._systematic_var

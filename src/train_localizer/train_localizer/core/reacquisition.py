@@ -137,7 +137,7 @@ class AidRecord:
 class AidCounters:
     """Since start: one count per status."""
 
-    counts: dict = field(default_factory=lambda: {s: 0 for s in STATUSES})
+    counts: dict = field(default_factory=lambda: dict.fromkeys(STATUSES, 0))
 
     @property
     def received(self):

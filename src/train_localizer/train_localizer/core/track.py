@@ -37,7 +37,8 @@ class Track:
     @classmethod
     def for_lamp_map(cls, lamp_map, alignment_name='', offset_yz_m=(0.0, 0.0)):
         """The track of a lamp map: ``alignment_name``, else the alignment the map file
-        names, else straight (ValueError for an unknown name)."""
+        names, else straight (ValueError for an unknown name).
+        """
         name = alignment_name or getattr(lamp_map, 'alignment', '') or 'straight'
         return cls(Alignment.named(name), offset_yz_m)
 

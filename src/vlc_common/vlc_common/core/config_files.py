@@ -7,7 +7,8 @@ _SOURCE_TREE = pathlib.Path(__file__).resolve().parents[3]
 
 def config_path(package, name):
     """``share/<package>/config/<name>`` of the installed package (ament index), else the
-    source tree's ``src/<package>/config/<name>``; the path may not exist."""
+    source tree's ``src/<package>/config/<name>``; the path may not exist.
+    """
     try:
         from ament_index_python.packages import get_package_share_directory
         path = pathlib.Path(get_package_share_directory(package)) / 'config' / name

@@ -99,7 +99,7 @@ class LampMap:
 
     @classmethod
     def load(cls, path):
-        with open(path, 'r', encoding='utf-8') as stream:
+        with open(path, encoding='utf-8') as stream:
             # libyaml's safe loader where PyYAML has it: 8x faster on the 200-lamp map,
             # which every node and every evaluation scenario loads
             data = yaml.load(stream, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))

@@ -152,7 +152,7 @@ class PhotodiodeConfig:
 
     @property
     def concentrator_gain(self):
-        """g = n² / sin² Ψc (ideal non-imaging concentrator)."""
+        """G = n² / sin² Ψc (ideal non-imaging concentrator)."""
         return self.refractive_index ** 2 / math.sin(math.radians(self.fov_half_angle_deg)) ** 2
 
     @property

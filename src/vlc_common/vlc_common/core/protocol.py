@@ -68,7 +68,8 @@ def split_uid(uid):
 
 def packet_chips(uid):
     """The 54 chips of one packet of ``uid``, (54,) int8 of 0/1: header ``111000``, then
-    the 16-bit UID and its CRC-8 (24 bits, MSB first) Manchester coded."""
+    the 16-bit UID and its CRC-8 (24 bits, MSB first) Manchester coded.
+    """
     if not 0 <= int(uid) <= 0xFFFF:
         raise ValueError(f'UID {uid} does not fit 16 bits')
     word = (int(uid) << 8) | int(crc8_uid(uid))

@@ -27,10 +27,23 @@ import logging
 
 import numpy as np
 
-from vlc_decoder.core.chips import (MIN_CONTRADICTIONS, OFF, ON, STATUS_INCONSISTENT, STATUS_OK,
-                    chip_states, decide_fold, find_crossings, fold_votes, header_positions,
-                    known_bits, packet_states, recover_clock, slice_chips)
 from vlc_common.core.protocol import PACKET_CHIPS, packet_chips
+from vlc_decoder.core.chips import (
+    MIN_CONTRADICTIONS,
+    OFF,
+    ON,
+    STATUS_INCONSISTENT,
+    STATUS_OK,
+    chip_states,
+    decide_fold,
+    find_crossings,
+    fold_votes,
+    header_positions,
+    known_bits,
+    packet_states,
+    recover_clock,
+    slice_chips,
+)
 
 LOG = logging.getLogger(__name__)
 
@@ -493,7 +506,8 @@ class PacketAssembler:
     def _own_read(self, frag):
         """``frag``'s chips read on its own edges (rate searched when it spans enough
         chips): states, value, weight (K,) and the chip indices where it shows a
-        header. Cached on the fragment."""
+        header. Cached on the fragment.
+        """
         if frag.own is None:
             cfg = self.cfg
             span = (frag.t_s[-1] - frag.t_s[0]) * cfg.chip_rate_hz

@@ -13,8 +13,14 @@ here are exposure mid-times.
 """
 import numpy as np
 
-from vlc_common.core.protocol import (CRC8_TABLE, DATA_BITS, HEADER_CHIPS, HEADER_LEN, PACKET_CHIPS,
-                       bits_to_word)
+from vlc_common.core.protocol import (
+    CRC8_TABLE,
+    DATA_BITS,
+    HEADER_CHIPS,
+    HEADER_LEN,
+    PACKET_CHIPS,
+    bits_to_word,
+)
 
 # a row's vote for a chip is weighted by (fraction of its exposure inside the chip)^4:
 # fully-inside rows count 1, rows straddling an edge almost nothing

@@ -278,7 +278,8 @@ def _fit_ellipse_rows(idx, s, level, reference):
 
 def _lit_extent(lit, core0, core1):
     """First and last row (patch indices) of the contiguous run of ``lit`` rows around
-    the bright core: the spot including its dim "off" rows."""
+    the bright core: the spot including its dim "off" rows.
+    """
     top = core0
     while top > 0 and lit[top - 1]:
         top -= 1

@@ -293,7 +293,8 @@ _TEXT_CRC8 = _crc8_table_text()
 
 def text_packets(uids):
     """(N, 54) chips of the packets of ``uids``, vectorised from the protocol text:
-    header 111000, then line_id‖lamp_id‖CRC-8 MSB first, bit 1 → 10, bit 0 → 01."""
+    header 111000, then line_id‖lamp_id‖CRC-8 MSB first, bit 1 → 10, bit 0 → 01.
+    """
     uids = np.asarray(uids, dtype=np.int64)
     crc = _TEXT_CRC8[_TEXT_CRC8[uids >> 8] ^ (uids & 0xFF)]
     word = (uids << 8) | crc

@@ -79,7 +79,8 @@ class _Track:
         contributes (px): a lamp's image speeds up as the train closes in on it (by
         half its speed per frame at 120 km/h in the last frames), so the next position
         is extrapolated at constant acceleration, but only from an unbroken run of
-        frames; after a gap the velocity alone is used."""
+        frames; after a gap the velocity alone is used.
+        """
         dt = (stamp_ns - self.stamp_ns) * 1e-9
         step = 0.5 * self.acceleration * dt * dt if self.missed == 0 else np.zeros(2)
         return np.array([self.u, self.v]) + self.velocity * dt + step, float(np.hypot(*step))
@@ -237,7 +238,8 @@ class LampTracker:
 
     def stamp_jumped_back(self, stamp_ns):
         """Whether ``stamp_ns`` lies more than ``stamp_jump_reset_s`` before the last
-        frame: the input restarted (a looped bag) rather than delivered a frame late."""
+        frame: the input restarted (a looped bag) rather than delivered a frame late.
+        """
         return (self.last_stamp_ns is not None and self.last_stamp_ns - int(stamp_ns)
                 > self.cfg.stamp_jump_reset_s * 1e9)
 

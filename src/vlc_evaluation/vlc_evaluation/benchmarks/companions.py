@@ -31,18 +31,17 @@ import time
 
 import numpy as np
 
-from vlc_common.core.rotations import rpy_to_matrix
-from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_common.core.optical_channel import PhotodiodeConfig
-from vlc_stereo_camera.core.photodiode import Photodiode
-from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
 from companion_localizers.core.dead_reckoning import DeadReckoning, DeadReckoningConfig
 from companion_localizers.core.ins_beacon import InsBeacon, InsBeaconConfig
 from companion_localizers.core.rssi import LampReading, RssiConfig, trilaterate
-from vlc_stereo_camera.core.upstream import LAMPS, run_core
+from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.optical_channel import PhotodiodeConfig
+from vlc_common.core.rotations import rpy_to_matrix
 from vlc_evaluation.companion_replay import replay_frames, replay_rssi, summary_ms
 from vlc_evaluation.companion_scoring import load_bag, score_poses
+from vlc_stereo_camera.core.photodiode import Photodiode
+from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
+from vlc_stereo_camera.core.upstream import LAMPS, run_core
 
 DEG = math.pi / 180.0
 SPEEDS_KMH = (20.0, 40.0, 60.0, 80.0, 100.0, 120.0)

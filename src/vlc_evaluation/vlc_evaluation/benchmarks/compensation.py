@@ -63,8 +63,12 @@ def departure(speed_kmh, dwell_s=20.0, cruise_s=100.0):
 
 
 def _trajectory(scenario, seed):
-    from vlc_stereo_camera.core.trajectory import (MotionProfile, Trajectory, Vibration,
-                                                   VibrationConfig)
+    from vlc_stereo_camera.core.trajectory import (
+        MotionProfile,
+        Trajectory,
+        Vibration,
+        VibrationConfig,
+    )
     if scenario.kind == 'standstill':
         profile = MotionProfile(kind='stationary', start_chainage_m=5.0)
     elif scenario.kind == 'departure':

@@ -29,11 +29,15 @@ import sys
 
 import numpy as np
 
+from companion_localizers.core.curvature import (
+    STATUS_OK,
+    STATUSES,
+    CurvatureConfig,
+    CurvatureLocalizer,
+)
 from vlc_common.core.alignment import Alignment
 from vlc_stereo_camera.core.imu_model import Adis16488Model, ImuSampler
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
-from companion_localizers.core.curvature import STATUS_OK, STATUSES, CurvatureConfig, CurvatureLocalizer
 
 NS = 1e-9
 DOC_BEGIN = '<!-- curvature_benchmark:begin -->'
@@ -154,7 +158,7 @@ def run(inputs, alignment, config=None, match_period_s=1.0, speed_timeout_s=0.5)
 
 def score(matches, inputs):
     """Score matches against the truth chainage (interpolated at each match time)."""
-    statuses = {s: 0 for s in STATUSES}
+    statuses = dict.fromkeys(STATUSES, 0)
     errors, cpu, ratios = [], [], []
     for m in matches:
         statuses[m.match.status] += 1

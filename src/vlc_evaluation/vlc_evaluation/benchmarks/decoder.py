@@ -129,7 +129,8 @@ def _rig():
 
 def _renderer_class(clock_error):
     """The rig's renderer, or one whose lamp clocks are all off by ``clock_error``
-    (fraction; sign drawn per lamp from the seed) instead of uniformly within ±ppm."""
+    (fraction; sign drawn per lamp from the seed) instead of uniformly within ±ppm.
+    """
     StereoRenderer = _rig()[3]
     if clock_error is None:
         return StereoRenderer
@@ -354,7 +355,8 @@ def _missed_table(lines, missed):
 
 def bench_rig(lines, n_lamps, seeds, chip_rates=(), speed_kmh=120.0):
     """The highest speed with rig changes that the decoder cannot make itself: frame
-    rates, and the lamps' chip rate (``chip_rates``, besides the graph's)."""
+    rates, and the lamps' chip rate (``chip_rates``, besides the graph's).
+    """
     graph_rate = GRAPH_TIMING['chip_rate_hz']
     options = [(f'as configured (30 fps, {graph_rate:.0f} chips/s)', {}, graph_rate),
                ('40 fps', {'fps': 40.0}, graph_rate),
@@ -420,7 +422,8 @@ def run_standstill(along_m, seed, chip_rate_hz, max_frames, lamp_map=None):
 
 def _shown_masks(t0_s, rows, chip_rate_hz, phases_chips, row_time_s, exposure_s):
     """Packet chips (bit masks, (P,) uint64) that ``rows`` expose ≥ 75 % inside a chip,
-    for lamp packet phases ``phases_chips`` (P,): the ideal reader's rule."""
+    for lamp packet phases ``phases_chips`` (P,): the ideal reader's rule.
+    """
     half = 0.5 * exposure_s * chip_rate_hz
     centre = (t0_s + rows * row_time_s) * chip_rate_hz + half - phases_chips[:, None]
     k = np.floor(centre)
@@ -494,7 +497,8 @@ def screen_chip_rates(rates_hz, speeds, seeds, n_lamps=6, inner=0.9, n_phases=27
 def bench_chipscreen(lines, seeds, speeds=(10, 20, 40, 60, 80, 100, 110, 120),
                      lo_hz=19_000.0, hi_hz=21_500.0, step_hz=10.0, top=12):
     """The screen of :func:`screen_chip_rates` over a range of rates: the best by the
-    worst speed, and the candidates."""
+    worst speed, and the candidates.
+    """
     rates = list(np.arange(lo_hz, hi_hz + 0.5 * step_hz, step_hz))
     rates += [r for r in CANDIDATE_CHIP_RATES_HZ if r not in rates]
     start = time.process_time()
@@ -533,7 +537,8 @@ def bench_chipscreen(lines, seeds, speeds=(10, 20, 40, 60, 80, 100, 110, 120),
 def bench_chiprates(lines, chip_rates, n_lamps, seeds, speeds=SPEEDS_KMH,
                     standstill_max_frames=60):
     """Candidate lamp chip rates at every speed and at standstill (rig and decoder
-    configured alike, the graph's exposure)."""
+    configured alike, the graph's exposure).
+    """
     fps = 30.0
     _out(lines, f'### Lamp chip rate: confirmation at every speed and at standstill '
                 f'({n_lamps} lamps x {len(seeds)} runs per speed, exposure '
@@ -652,7 +657,8 @@ def _range_png(frames, path):
 
 def bench_whatif(lines, n_lamps, seeds, chip_rate_hz=10_000.0, exposure_s=50e-6):
     """The high speeds again at the protocol's default 10 kchip/s and the paper's 50 us
-    exposure (rig and decoder alike): why the project runs 20 kchip/s and 25 us."""
+    exposure (rig and decoder alike): why the project runs 20 kchip/s and 25 us.
+    """
     _out(lines, '### What if: the protocol default 10 kchip/s with 50 us exposure (rig and '
                 'decoder configured alike)')
     _out(lines)

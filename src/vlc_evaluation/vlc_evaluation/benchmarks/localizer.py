@@ -22,14 +22,18 @@ import time
 
 import numpy as np
 
+from train_localizer.core.fix import RigGeometry
+from train_localizer.core.localizer import Localizer, LocalizerConfig
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import straight_tunnel_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
-from train_localizer.core.fix import RigGeometry
-from train_localizer.core.localizer import Localizer, LocalizerConfig
-from vlc_stereo_camera.core.upstream import (SensorErrors, SensorSimulator, SimTiming, event_stream,
-                              from_stamp_ns)
+from vlc_stereo_camera.core.upstream import (
+    SensorErrors,
+    SensorSimulator,
+    SimTiming,
+    event_stream,
+    from_stamp_ns,
+)
 
 CONFIGS = {
     'full': {},

@@ -36,19 +36,24 @@ import time
 
 import numpy as np
 
+from companion_localizers.core.curvature import CurvatureConfig, CurvatureLocalizer
 from train_localizer.core.fix import RigGeometry
 from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import STATUSES, ChainageAid, ReacquisitionConfig
-from vlc_stereo_camera.core.upstream import (SensorErrors, SensorSimulator, dark_lamps,
-                                             event_stream, feed_localizer, from_stamp_ns,
-                                             to_stamp_ns)
 from train_localizer.core.track import Track
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import alignment_lamp_map
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-
-from companion_localizers.core.curvature import CurvatureConfig, CurvatureLocalizer
+from vlc_stereo_camera.core.upstream import (
+    SensorErrors,
+    SensorSimulator,
+    dark_lamps,
+    event_stream,
+    feed_localizer,
+    from_stamp_ns,
+    to_stamp_ns,
+)
 
 _DEG = math.pi / 180.0
 DOC_BEGIN = '<!-- reacquisition_benchmark:begin -->'
@@ -64,7 +69,8 @@ ERRORS = {
 class OutageRun:
     """Result of one run. Arrays per published pose: ``t_s``, ``truth_m``, ``chainage_m``,
     ``sigma_m`` (published along-track 1σ); ``aids`` the AidRecords (empty without the
-    aid), ``matches`` the accepted curvature matches (t_s, chainage, σ)."""
+    aid), ``matches`` the accepted curvature matches (t_s, chainage, σ).
+    """
 
     t_s: np.ndarray
     truth_m: np.ndarray
@@ -153,7 +159,7 @@ def summary(run):
     inside = run.in_outage(20.0)
     end = run.end_of_outage()
     after = run.truth_m > run.dark[1] + 5.0
-    counts = {s: 0 for s in STATUSES}
+    counts = dict.fromkeys(STATUSES, 0)
     for a in run.aids:
         counts[a.status] += 1
     return {

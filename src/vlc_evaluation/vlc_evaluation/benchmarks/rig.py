@@ -27,8 +27,8 @@ import time
 import cv2
 import numpy as np
 
-from vlc_stereo_camera.conversions import header, image_msg
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path, straight_tunnel_map
+from vlc_stereo_camera.conversions import header, image_msg
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 

@@ -25,12 +25,17 @@ import numpy as np
 import yaml
 
 from spot_locator.core import eccentricity as ecc
-from vlc_common.core.config_files import config_path
 from spot_locator.core import synth
 from spot_locator.core.centres import ChordConfig
 from spot_locator.core.detection import DetectConfig, detect_spots
-from spot_locator.core.locator import (FLAG_CUT_BY_BORDER, METHODS, LocatorConfig, SpotLocator,
-                           StereoGeometry)
+from spot_locator.core.locator import (
+    FLAG_CUT_BY_BORDER,
+    METHODS,
+    LocatorConfig,
+    SpotLocator,
+    StereoGeometry,
+)
+from vlc_common.core.config_files import config_path
 
 DISTANCES_M = np.round(np.arange(0.5, 10.01, 0.5), 2)
 SPEEDS_KMH = (100.0, 120.0)
@@ -64,9 +69,9 @@ REPEATS = 9
 
 def _rig_modules():
     from vlc_common.core.lamp_map import Lamp, LampMap, resolve_lamp_map_path
+    from vlc_common.core.protocol import uid_of
     from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
     from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
-    from vlc_common.core.protocol import uid_of
     return dict(Lamp=Lamp, LampMap=LampMap, resolve=resolve_lamp_map_path,
                 RendererConfig=RendererConfig, StereoRenderer=StereoRenderer,
                 MotionProfile=MotionProfile, Trajectory=Trajectory, Vibration=Vibration,
@@ -105,7 +110,8 @@ class Bench:
     def locator(self, method='chord', eccentricity='conic', wiener=False,
                 rolling_shutter_model=True, two_pass=True):
         """``two_pass``: True (default), False (one pass, frame background) or 'flat' (two
-        passes, the ring's mean level, every row in the width parabola)."""
+        passes, the ring's mean level, every row in the width parabola).
+        """
         flat = two_pass == 'flat'
         two_pass = bool(two_pass)
         cfg = LocatorConfig(method=method, eccentricity=eccentricity, wiener=wiener,
@@ -600,7 +606,7 @@ def write_sections(doc, sections):
         pattern = re.compile(rf'<!-- BEGIN GENERATED: {re.escape(name)} -->.*?'
                              rf'<!-- END GENERATED: {re.escape(name)} -->', re.S)
         if pattern.search(text):
-            text = pattern.sub(lambda _: block, text)
+            text = pattern.sub(lambda _, block=block: block, text)
         else:
             text += f'\n{block}\n'
     doc.write_text(text, encoding='utf-8')

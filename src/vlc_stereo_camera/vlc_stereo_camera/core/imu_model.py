@@ -36,8 +36,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from vlc_stereo_camera.core.allan import (GM_PEAK_TAU_RATIO, allan_floor, cluster_sizes, fit_white_density,
-                    gauss_markov_adev, overlapping_adev)
+from vlc_stereo_camera.core.allan import (
+    GM_PEAK_TAU_RATIO,
+    allan_floor,
+    cluster_sizes,
+    fit_white_density,
+    gauss_markov_adev,
+    overlapping_adev,
+)
 
 GRAVITY_MPS2 = 9.80665
 DEG = np.pi / 180.0
@@ -116,7 +122,8 @@ class Adis16488Params:
                              accel_scale_factor_sigma, gyro_misalignment_sigma_deg,
                              accel_misalignment_sigma_deg, gyro_range_dps, accel_range_g):
         """Build from datasheet units (argument order): °/√h, °/h, m/s/√h, mg, s, s, °/s,
-        mg, –, –, °, °, °/s, g."""
+        mg, –, –, °, °, °/s, g.
+        """
         return cls(
             gyro_arw_rad_s_rthz=gyro_arw_deg_rthr * DEG / 60.0,
             gyro_bias_instability_rad_s=gyro_bias_instability_deg_hr * DEG / 3600.0,

@@ -1,13 +1,17 @@
 """Photodiode on the train head: each lamp's received optical power (VLC + RSSI), drawn
 through the optical channel of :mod:`vlc_common.core.optical_channel` along the rig's
-trajectory, with each lamp's true power and the sample noise."""
+trajectory, with each lamp's true power and the sample noise.
+"""
 from dataclasses import dataclass
 import math
 
 import numpy as np
 
-from vlc_common.core.optical_channel import (PhotodiodeConfig, channel_gain, noise_variance_a2,
-                                             photodiode_pose)
+from vlc_common.core.optical_channel import (
+    channel_gain,
+    noise_variance_a2,
+    photodiode_pose,
+)
 
 #: Seed-sequence tag of the photodiode's random streams (independent of the camera's
 #: and the IMU's streams drawn from the same scenario seed).

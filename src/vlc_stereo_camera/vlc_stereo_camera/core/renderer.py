@@ -61,9 +61,9 @@ import cv2
 import numpy as np
 
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
+from vlc_common.core.protocol import PACKET_CHIPS
 from vlc_common.core.rotations import rpy_to_matrix
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig, SensorModel
-from vlc_common.core.protocol import PACKET_CHIPS
 from vlc_stereo_camera.core.transmitter import LampWaveform
 
 _RIM_POINTS = 32
@@ -329,7 +329,7 @@ class StereoRenderer:
         return uv, z
 
     def _may_be_in_view(self, g, t0_s):
-        """Cheap cull: can the disc's image touch either image during this frame?
+        """Cheap cull: whether the disc's image may touch either image during this frame.
 
         The centre is projected at the first and last row's exposure; the box of the two
         is grown by the disc's projected radius and the PSF pad.

@@ -118,7 +118,8 @@ class SensorModel:
 
     def background_electrons(self, height, width):
         """(H, W) float32 mean electrons of the dim tunnel: a smooth gradient, mean
-        ``background_dn``."""
+        ``background_dn``.
+        """
         c = self.config
         v = np.linspace(0.0, 1.0, height, dtype=np.float32)[:, None]
         u = np.linspace(0.0, 1.0, width, dtype=np.float32)[None, :]

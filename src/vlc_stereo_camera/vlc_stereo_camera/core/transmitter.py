@@ -1,10 +1,12 @@
 """What the synthetic lamps broadcast: the light output of the VLC protocol
-(:mod:`vlc_common.core.protocol`) over time, with each lamp's own clock."""
+(:mod:`vlc_common.core.protocol`) over time, with each lamp's own clock.
+"""
 from dataclasses import dataclass
 
 import numpy as np
 
 from vlc_common.core.protocol import PACKET_CHIPS, packet_chips
+
 
 @dataclass
 class LampWaveform:

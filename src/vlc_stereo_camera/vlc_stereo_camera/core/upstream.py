@@ -25,7 +25,7 @@ import numpy as np
 
 from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import straight_tunnel_map
-from vlc_common.core.observation import ImuSample, LampObservation, NS_PER_S
+from vlc_common.core.observation import NS_PER_S, ImuSample, LampObservation
 from vlc_common.core.rotations import quat_from_rpy, quat_multiply
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration
 
@@ -253,7 +253,8 @@ def feed_localizer(localizer, events, frame_hook=None, on_report=None):
 
 def dark_lamps(lamp_map, dark_m):
     """A ``frame_hook`` for :func:`feed_localizer`: the lamps whose track chainage lies in
-    ``dark_m`` = (from, to) are dark, their observations dropped."""
+    ``dark_m`` = (from, to) are dark, their observations dropped.
+    """
     lo, hi = dark_m
 
     def hook(stamp_ns, observations, truth):
@@ -268,7 +269,8 @@ LAMPS = straight_tunnel_map()
 def constant_speed_run(speed_kmh, t_end_s, seed, start_chainage_m=0.0, errors=None):
     """(trajectory, events) of a run at constant speed on the straight map from
     ``start_chainage_m``, with the default error model: what :func:`event_stream` yields
-    over ``[0, t_end_s]``."""
+    over ``[0, t_end_s]``.
+    """
     traj = Trajectory(MotionProfile('constant', start_chainage_m=start_chainage_m,
                                     speed_mps=speed_kmh / 3.6), Vibration(seed=seed))
     sim = SensorSimulator(traj, StereoRig(), LAMPS, errors or SensorErrors(),
@@ -310,7 +312,8 @@ def yaw_rate_on_alignment(alignment, start_m, distance_m, speed_mps, rate_hz=100
                           bias_rps=0.0, noise_rps=0.0, vibration_deg=0.0, vibration_hz=0.45):
     """(t s, yaw rate rad/s, true chainage m) of a train at constant speed on
     ``alignment``: κ(s)·v plus a gyro bias, seeded white noise and a bounded heading
-    oscillation ``A sin(2π f t)``."""
+    oscillation ``A sin(2π f t)``.
+    """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, distance_m / speed_mps, 1.0 / rate_hz)
     s = start_m + speed_mps * t
