@@ -9,7 +9,7 @@ pytest.importorskip('rclpy')
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2, PointField  # noqa: E402
 
 from train_localizer import conversions  # noqa: E402
-from train_localizer.core.localizer import PoseEstimate  # noqa: E402
+from train_localizer.core.reports import PoseEstimate  # noqa: E402
 
 
 def test_stamps_round_trip_exactly():

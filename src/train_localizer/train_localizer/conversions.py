@@ -9,7 +9,7 @@ Inputs:
 * ``imu/data`` (sensor_msgs/Imu) → :class:`~vlc_common.core.observation.ImuSample`;
 * ``stereo/*/camera_info`` → rectified intrinsics and baseline.
 
-Outputs: a :class:`~train_localizer.core.localizer.PoseEstimate` → PoseStamped,
+Outputs: a :class:`~train_localizer.core.reports.PoseEstimate` → PoseStamped,
 PoseWithCovarianceStamped and Odometry; the integrity status → DiagnosticStatus.
 """
 import math

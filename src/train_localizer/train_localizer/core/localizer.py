@@ -2,32 +2,20 @@
 
 Time handling (all stamps integer ns of the sensor clock):
 
-* Every accepted IMU sample adds a *step* to a short history: its time, the
-  along-track acceleration input over the interval that ends there, and the filter
-  state after it. A lamp fix is older than the newest IMU sample (image processing
-  takes longer than an IMU period), so it is applied where it belongs: a step is
-  inserted at the fix's measurement time (predicted from the step before it with that
-  interval's input), updated, and every later step is re-propagated with its stored
-  input. The result is exactly what an in-order filter would have produced.
+* Every accepted IMU sample adds a step to a short history
+  (:mod:`train_localizer.core.history`); a lamp fix, older than the newest IMU sample
+  because image processing takes longer than an IMU period, is inserted where it
+  belongs and the later steps are replayed, exactly as an in-order filter would have.
 * A fix newer than the newest IMU sample waits for the IMU to catch up, unless the IMU
   lags the newest frame by more than ``imu_timeout_s`` (or never came); then the filter
   is extrapolated to the fix with an unknown acceleration (``unknown_accel_sigma_mps2``).
   An IMU sample that arrives later but is newer than the newest IMU sample is inserted
   into the history like a fix, so an IMU that starts late or lags is used as soon as
   it arrives.
-* Poses are emitted on a grid of ``publish_rate_hz`` in sensor time as the IMU passes
-  each grid instant (so also between fixes, and with exact stamps), and, with
-  ``publish_on_fix``, once more right after a fix at the newest step, so a frame's
-  information is published as soon as it is used.
-* Every measurement update (lamp fix, zero-velocity update, (re-)initialisation) is
-  stored with its step and re-applied when an older fix forces a replay.
-* Cold start without a prior: nothing is published until a confirmed UID (and until
-  the chainage 1σ is below ``max_sigma_m``, i.e. the speed is known). The
-  confirming frame usually comes after several frames in which the decoder tracked the
-  same lamp without a UID yet; those observations are kept for ``init_lookback_s`` and,
-  once lamp L is confirmed, chained backwards frame by frame (each within
-  ``max_speed_mps`` of the next and farther from every other map lamp), so the filter
-  starts from a short track of L and knows the speed at once.
+* Poses: on a sensor-time grid and right after a fix (:mod:`train_localizer.core.publication`).
+* Cold start from the first confirmed lamp and its earlier frames, or from a configured
+  prior; restarts of the chainage when confirmed lamps contradict the state
+  (:mod:`train_localizer.core.initialisation`, :mod:`train_localizer.core.integrity`).
 * Zero-velocity updates while the IMU shows a standing platform
   (:mod:`train_localizer.core.standstill`).
 * A sample older than the newest by more than ``backward_reset_s`` (a restarted clock or
@@ -49,6 +37,8 @@ from train_localizer.core.fix import (
     triangulate,
     vision_attitude,
 )
+from train_localizer.core.history import NO_INPUT, StepHistory
+from train_localizer.core.initialisation import ColdStart, prior_state, restarted_chainage
 from train_localizer.core.integrity import (
     Contradiction,
     IntegrityConfig,
@@ -57,15 +47,14 @@ from train_localizer.core.integrity import (
     mahalanobis2,
     select_association,
 )
-from train_localizer.core.kalman import (
-    H_CHAINAGE,
-    H_SPEED,
-    FilterState,
-    KalmanConfig,
-    initial_state,
-    innovation,
-    predict,
-    update,
+from train_localizer.core.kalman import H_CHAINAGE, H_SPEED, KalmanConfig, initial_state, innovation
+from train_localizer.core.publication import PoseGate
+from train_localizer.core.reports import (
+    AttitudeAid,
+    Event,
+    FixRecord,
+    PoseEstimate,
+    StepReport,
 )
 from train_localizer.core.standstill import StandstillConfig, StandstillDetector
 from vlc_common.core.observation import NS_PER_S
@@ -73,7 +62,6 @@ from vlc_common.core.rotations import matrix_to_quat_xyzw, quat_to_matrix
 
 _DEG = math.pi / 180.0
 _GRAVITY_MPS2 = 9.80665
-_NO_INPUT = (float('nan'), 0.0)   # a step whose acceleration is unknown
 
 
 @dataclass
@@ -166,113 +154,6 @@ class LocalizerConfig:
 
 
 @dataclass
-class PoseEstimate:
-    """The pose of ``base_link`` in ``map`` at ``stamp_ns``.
-
-    Attributes
-    ----------
-    stamp_ns : int
-        Time the pose describes, ns.
-    position_m : ndarray (3,)
-        Chainage and the nominal track offsets, m.
-    position_cov_m2 : ndarray (3, 3)
-        Covariance of ``position_m`` (along-track: filter variance plus the systematic
-        floor of the last fix), m².
-    speed_mps, speed_var : float
-        Along-track speed and its variance (m/s, m²/s²); NaN for raw fixes.
-    quat_xyzw : ndarray (4,)
-        Attitude of ``base_link`` in ``map``; identity when unknown.
-    attitude_cov_rad2 : ndarray (3, 3)
-        Attitude covariance about map x, y, z, rad² (large when unknown).
-    angular_velocity_rps : ndarray (3,)
-        Angular rate in ``base_link`` (from the newest IMU sample before the stamp).
-    kind : str
-        ``grid`` (publish grid), ``fix`` (right after a fix) or ``raw`` (use_kalman off).
-    chainage_along_m, chainage_var_m2 : float
-        The chainage (m) and its variance (m²): ``position_m`` is the track's point there.
-    """
-
-    stamp_ns: int
-    position_m: np.ndarray
-    position_cov_m2: np.ndarray
-    speed_mps: float
-    speed_var: float
-    quat_xyzw: np.ndarray
-    attitude_cov_rad2: np.ndarray
-    angular_velocity_rps: np.ndarray
-    kind: str
-    chainage_along_m: float = float('nan')
-    chainage_var_m2: float = float('nan')
-
-    @property
-    def chainage_m(self):
-        if math.isfinite(self.chainage_along_m):
-            return float(self.chainage_along_m)
-        return float(self.position_m[0])
-
-    @property
-    def chainage_sigma_m(self):
-        if math.isfinite(self.chainage_var_m2):
-            return math.sqrt(self.chainage_var_m2)
-        return math.sqrt(self.position_cov_m2[0, 0])
-
-
-@dataclass
-class FixRecord:
-    """What happened to one lamp observation (for diagnostics and the benchmark).
-
-    ``status`` is one of ``accepted``, ``initialised``, ``reinitialised``,
-    ``rejected_gate``, ``rejected_geometry``, ``unknown_uid``, ``unconfirmed_skipped``,
-    ``too_old``, ``bad_observation``, ``waiting_for_uid``.
-    """
-
-    measurement_ns: int
-    uid: object
-    lamp_uid: object
-    status: str
-    chainage_m: float = float('nan')
-    var_m2: float = float('nan')
-    d2: float = float('nan')
-    detail: str = ''
-
-
-@dataclass
-class Event:
-    """A condition the node should log (throttled per ``code``)."""
-
-    level: Level
-    code: str
-    message: str
-
-
-@dataclass
-class StepReport:
-    """Outputs of one ``add_imu`` / ``add_frame`` call."""
-
-    poses: list = field(default_factory=list)
-    fixes: list = field(default_factory=list)
-    events: list = field(default_factory=list)
-    attitude_aids: list = field(default_factory=list)
-
-
-@dataclass
-class AttitudeAid:
-    """The platform attitude one lamp shows (for ``attitude_aiding``).
-
-    ``quat_xyzw`` is the IMU attitude at ``stamp_ns`` corrected by the attitude error
-    the lamp's range and direction show (:func:`~train_localizer.core.fix.vision_attitude`);
-    ``cov_rad2`` its covariance about the map axes from the lamp alone (the IMU's own
-    attitude was not used: large about the line of sight, which one lamp cannot see),
-    rad². ``chainage_m`` is the fix's.
-    """
-
-    stamp_ns: int
-    quat_xyzw: np.ndarray
-    cov_rad2: np.ndarray
-    chainage_m: float
-
-
-@dataclass
 class _Prepared:
     """An observation with its geometry worked out (triangulation and attitude)."""
 
@@ -297,20 +178,19 @@ class Localizer:
         self.lamp_map = lamp_map
         self.config = config or LocalizerConfig()
         self.monitor = IntegrityMonitor(self.config.integrity)
-        self._period_ns = int(round(NS_PER_S / self.config.publish_rate_hz))
+        cfg = self.config
+        self._steps = StepHistory(cfg.kalman, cfg.history_s)
+        self._gate = PoseGate(cfg.publish_rate_hz, cfg.integrity.max_sigma_m)
+        self._cold = ColdStart(cfg.init_lookback_s, cfg.max_speed_mps)
         self._reset_state()
 
     # ----------------------------------------------------------------- state
     def _reset_state(self):
         cfg = self.config
-        self._t = []        # step times, ns
-        self._a = []        # (along-track acceleration input, extra bias noise q) over the
-                            # interval ending here; _NO_INPUT when unknown
-        self._x = []        # FilterState after the step's updates, None before initialisation
-        self._gyro = []     # angular rate at the step (base_link), rad/s
-        self._upd = []      # updates applied at the step, re-applied on replay
+        self._steps.clear()
+        self._gate.reset()
+        self._cold.clear()
         self._pending = []  # (measurement_ns, seq, observation) waiting for the IMU
-        self._preinit = []  # unconfirmed _Prepared observations kept for the cold start
         self._seq = 0
         self._att = AttitudeBuffer(horizon_s=cfg.history_s + 1.0,
                                    max_gap_s=max(cfg.imu_max_gap_s, 1e-3),
@@ -323,14 +203,9 @@ class Localizer:
         self._prev_gyro = None
         self._last_accel = 0.0
         self._initialized = False
-        self._init_ns = None
         self._has_fix = False
         self._systematic_var = cfg.fix.lamp_position_sigma_m ** 2
-        self._last_pub_ns = None
         self._last_aid_ns = None
-        self._next_grid_ns = None
-        self._publish_pending = False
-        self._publishing = False
         self.monitor.clear()
 
     def reset(self):
@@ -343,19 +218,20 @@ class Localizer:
 
     @property
     def newest_ns(self):
-        return self._t[-1] if self._t else None
+        return self._steps.newest_ns
 
     def current_state(self):
         """Newest filter state (FilterState) or None before initialisation."""
-        return self._x[-1] if self._t and self._x[-1] is not None else None
+        return self._steps.newest_state
 
     def state_at(self, stamp_ns):
         """Filter state (FilterState) at ``stamp_ns`` within the history, else None."""
         t = int(stamp_ns)
-        if (not self.config.use_kalman or not self._t or t < self._t[0] or t > self._t[-1]
-                or self._x[-1] is None):
+        steps = self._steps
+        if (not self.config.use_kalman or not steps.t or t < steps.t[0] or t > steps.t[-1]
+                or steps.x[-1] is None):
             return None
-        return self._state_at(t)
+        return steps.state_at(t)
 
     def apply_chainage_aid(self, stamp_ns, chainage_m, var_m2, reset=False):
         """An external chainage measurement at ``stamp_ns`` (re-acquisition aid, see
@@ -374,8 +250,8 @@ class Localizer:
         if reset:
             self._set_chainage(i, chainage_m, var_m2, keep_speed=False)
         else:
-            self._add_update(i, ('z', H_CHAINAGE, float(chainage_m), float(var_m2)))
-        self._publish_pending = self.config.publish_on_fix
+            self._steps.add_update(i, ('z', H_CHAINAGE, float(chainage_m), float(var_m2)))
+        self._gate.fix_pending = self.config.publish_on_fix
         return True
 
     def status(self):
@@ -419,21 +295,15 @@ class Localizer:
                                        f'IMU gap of {(t - self._newest_imu_ns) * 1e-9:.3f} s: '
                                        'acceleration unknown over it'))
         first = self._newest_imu_ns is None
-        a_in = _NO_INPUT if (gap or first) else (0.5 * (self._last_accel + accel),
-                                                 self._tilt_leak_q(sample))
+        a_in = NO_INPUT if (gap or first) else (0.5 * (self._last_accel + accel),
+                                                self._tilt_leak_q(sample))
         self._last_accel = accel
         self._newest_imu_ns = t
-        if self._t and t <= self._t[-1]:
+        if self._steps.t and t <= self._steps.t[-1]:
             # Fixes were extrapolated past this sample while the IMU lagged: put it where
             # it belongs and replay the later steps.
-            i = self._insert_step(t)
-            self._a[i] = a_in
-            self._gyro[i] = np.asarray(sample.gyro_rps, dtype=float)
-            if i > 0 and self._x[i - 1] is not None:
-                self._x[i] = self._propagate(self._x[i - 1], t - self._t[i - 1], a_in)
-                for upd in self._upd[i]:
-                    self._x[i] = self._apply_update(self._x[i], upd)
-                self._replay_from(i)
+            self._steps.insert_sample(t, a_in, sample.gyro_rps)
+            self._gate.start_grid(t)
         else:
             self._append_step(t, a_in, sample.gyro_rps)
         standing = self._standstill.push(t, sample.gyro_rps, sample.accel_mps2)
@@ -477,7 +347,7 @@ class Localizer:
 
     def _tangent(self):
         """Running direction (3,) at the newest chainage estimate (curved track)."""
-        state = self._x[-1] if self._x else None
+        state = self._steps.x[-1] if self._steps.x else None
         if state is None:
             return self.config.fix.track.frame(0.0)[1]
         return self.config.fix.track.frame(float(state.x[0]))[1]
@@ -485,7 +355,7 @@ class Localizer:
     def _zero_velocity(self, t):
         """Zero-velocity update at the newest step if the filter's speed allows it."""
         cfg = self.config.standstill
-        state = self._x[-1]
+        state = self._steps.x[-1]
         if state is None or not self.config.use_kalman:
             return
         period_ns = cfg.update_period_s * NS_PER_S
@@ -494,7 +364,29 @@ class Localizer:
         if not StandstillDetector.speed_allows_update(state.x[1], state.P[1, 1], cfg):
             return
         self._last_zupt_ns = t
-        self._add_update(len(self._t) - 1, ('z', H_SPEED, 0.0, cfg.speed_sigma_mps ** 2))
+        self._steps.add_update(len(self._steps) - 1,
+                               ('z', H_SPEED, 0.0, cfg.speed_sigma_mps ** 2))
+
+    def _tilt_leak_q(self, sample):
+        """Extra bias random-walk intensity (m²/s⁵) from the pitch uncertainty of a sample.
+
+        A pitch error δθ leaks g·δθ of gravity into the along-track acceleration. It is
+        not white: it drifts with the attitude filter's error (after a cold start at
+        speed the pitch is uncertain by degrees for tens of seconds, 1° = 0.17 m/s²).
+        It is modelled as bias wander that can cover g·σ_pitch within
+        ``tilt_leak_time_s``: intensity (g·σ_pitch)² / τ.
+        """
+        cfg = self.config
+        tau = cfg.tilt_leak_time_s
+        if tau <= 0.0:
+            return 0.0
+        if cfg.use_imu_attitude and sample.quat_xyzw is not None:
+            floor = cfg.attitude_sigma_floor_rad[1] ** 2
+            cov = sample.attitude_cov_rad2
+            var = floor if cov is None else max(float(cov[1, 1]), floor)
+        else:
+            var = cfg.attitude_sigma_unknown_rad[1] ** 2
+        return (_GRAVITY_MPS2 ** 2) * var / tau
 
     # ----------------------------------------------------------------- frames
     def add_frame(self, stamp_ns, observations):
@@ -540,8 +432,8 @@ class Localizer:
             if imu is not None and t_m <= imu:
                 pass
             elif self._imu_absent():
-                if self._t and t_m > self._t[-1]:
-                    self._append_step(t_m, _NO_INPUT, np.zeros(3))
+                if self._steps.t and t_m > self._steps.t[-1]:
+                    self._append_step(t_m, NO_INPUT, np.zeros(3))
             else:
                 break
             self._pending.pop(0)
@@ -549,124 +441,22 @@ class Localizer:
 
     # ----------------------------------------------------------------- steps
     def _append_step(self, t, a_in, gyro):
-        """Append a step at the newest end and propagate the state to it."""
-        x = None
-        if self._t and self._x[-1] is not None:
-            x = self._propagate(self._x[-1], t - self._t[-1], a_in)
-        elif not self._t and self.config.use_kalman and math.isfinite(
-                self.config.initial_chainage_m):
-            x = self._prior_state(t)
-        self._t.append(t)
-        self._a.append(a_in)
-        self._x.append(x)
-        self._gyro.append(np.asarray(gyro, dtype=float))
-        self._upd.append([])
-        if self._next_grid_ns is None:
-            self._next_grid_ns = (t // self._period_ns + 1) * self._period_ns
-        self._prune()
-
-    def _prior_state(self, t):
-        """Initial state from the configured prior (the first step after start/reset)."""
-        cfg = self.config
-        speed = cfg.initial_speed_mps
-        state = initial_state(cfg.initial_chainage_m, cfg.initial_chainage_sigma_m ** 2,
-                              cfg.kalman, speed_mps=speed if math.isfinite(speed) else 0.0,
-                              speed_var_m2s2=0.01 if math.isfinite(speed) else None)
-        self._initialized = True
-        self._init_ns = t
-        self._publishing = True         # a prior is published at once, whatever its σ
-        return state
-
-    def _propagate(self, state, dt_ns, a_in):
-        cfg = self.config.kalman
-        dt = dt_ns * 1e-9
-        accel, bias_q = a_in
-        if math.isnan(accel):
-            return predict(state, dt, float(state.x[2]), cfg, cfg.unknown_accel_sigma_mps2 ** 2)
-        return predict(state, dt, accel, cfg, bias_q_extra=bias_q)
-
-    def _tilt_leak_q(self, sample):
-        """Extra bias random-walk intensity (m²/s⁵) from the pitch uncertainty of a sample.
-
-        A pitch error δθ leaks g·δθ of gravity into the along-track acceleration. It is
-        not white: it drifts with the attitude filter's error (after a cold start at
-        speed the pitch is uncertain by degrees for tens of seconds, 1° = 0.17 m/s²).
-        It is modelled as bias wander that can cover g·σ_pitch within
-        ``tilt_leak_time_s``: intensity (g·σ_pitch)² / τ.
+        """Append a step at the newest end: propagated, or from the configured prior when
+        it is the first step after start or a reset.
         """
+        first = None
         cfg = self.config
-        tau = cfg.tilt_leak_time_s
-        if tau <= 0.0:
-            return 0.0
-        if cfg.use_imu_attitude and sample.quat_xyzw is not None:
-            floor = cfg.attitude_sigma_floor_rad[1] ** 2
-            cov = sample.attitude_cov_rad2
-            var = floor if cov is None else max(float(cov[1, 1]), floor)
-        else:
-            var = cfg.attitude_sigma_unknown_rad[1] ** 2
-        return (_GRAVITY_MPS2 ** 2) * var / tau
-
-    def _prune(self):
-        cutoff = self._t[-1] - int(self.config.history_s * NS_PER_S)
-        k = bisect.bisect_right(self._t, cutoff) - 1
-        if k > 64:
-            del self._t[:k], self._a[:k], self._x[:k], self._gyro[:k], self._upd[:k]
-
-    def _index_at_or_before(self, t):
-        return bisect.bisect_right(self._t, t) - 1
-
-    def _state_at(self, t):
-        """Filter state at ``t`` (not stored) from the step at or before it, or None."""
-        i = self._index_at_or_before(t)
-        if i < 0 or self._x[i] is None:
-            return None
-        if self._t[i] == t:
-            return self._x[i]
-        a_in = self._a[i + 1] if i + 1 < len(self._t) else self._a[i]
-        return self._propagate(self._x[i], t - self._t[i], a_in)
+        if not self._steps.t and cfg.use_kalman and math.isfinite(cfg.initial_chainage_m):
+            first = prior_state(cfg)
+            self._initialized = True
+            self._gate.open_at(t)
+        self._steps.append(t, a_in, gyro, first)
+        self._gate.start_grid(t)
 
     def _insert_step(self, t):
-        """Index of a step at ``t``, inserting one (state propagated) if needed."""
-        i = self._index_at_or_before(t)
-        if i >= 0 and self._t[i] == t:
-            return i
-        if i + 1 < len(self._t):
-            a_in = self._a[i + 1]
-        else:
-            a_in = self._a[i] if i >= 0 else _NO_INPUT
-        state = self._state_at(t) if i >= 0 else None
-        gyro = self._gyro[i] if i >= 0 else (self._gyro[0] if self._gyro else np.zeros(3))
-        self._t.insert(i + 1, t)
-        self._a.insert(i + 1, a_in)
-        self._x.insert(i + 1, state)
-        self._gyro.insert(i + 1, gyro)
-        self._upd.insert(i + 1, [])
-        if self._next_grid_ns is None:
-            self._next_grid_ns = (t // self._period_ns + 1) * self._period_ns
-        return i + 1
-
-    @staticmethod
-    def _apply_update(state, upd):
-        if upd[0] == 'set':
-            return upd[1].copy()
-        _, h, z, r = upd
-        return update(state, z, r, h)
-
-    def _add_update(self, i, upd):
-        """Apply ``upd`` at step ``i``, remember it, and replay the later steps."""
-        self._upd[i].append(upd)
-        self._x[i] = self._apply_update(self._x[i], upd)
-        self._replay_from(i)
-
-    def _replay_from(self, i):
-        """Re-propagate every step after ``i`` with its stored input and updates."""
-        for j in range(i + 1, len(self._t)):
-            prev = self._x[j - 1]
-            x = None if prev is None else self._propagate(prev, self._t[j] - self._t[j - 1],
-                                                          self._a[j])
-            for upd in self._upd[j]:
-                x = self._apply_update(x, upd)
-            self._x[j] = x
+        i = self._steps.insert(t)
+        self._gate.start_grid(t)
+        return i
 
     # ----------------------------------------------------------------- attitude
     def _attitude(self, t):
@@ -696,7 +486,7 @@ class Localizer:
     def _handle_observation(self, t_m, obs, report):
         cfg = self.config
         mon = self.monitor
-        if self._t and t_m < self._t[-1] - int(cfg.history_s * NS_PER_S):
+        if self._steps.is_too_old(t_m):
             mon.counters.records_too_old += 1
             report.fixes.append(FixRecord(t_m, obs.uid, None, 'too_old'))
             report.events.append(Event(Level.WARN, 'fix_too_old',
@@ -734,7 +524,7 @@ class Localizer:
         """Gate one observation against the filter and apply it (initialised filter)."""
         mon = self.monitor
         t_m, obs = prep.t_ns, prep.obs
-        state = self._state_at(t_m)
+        state = self._steps.state_at(t_m)
         if state is None:
             report.fixes.append(FixRecord(t_m, obs.uid, None, 'too_old',
                                           detail='older than the initialisation'))
@@ -828,19 +618,18 @@ class Localizer:
 
     def _apply_fix(self, t_m, fix):
         i = self._insert_step(t_m)
-        self._add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
+        self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
         self._systematic_var = fix.var_systematic_m2
         self._has_fix = True
-        self._publish_pending = self.config.publish_on_fix
+        self._gate.fix_pending = self.config.publish_on_fix
 
     def _try_initialise(self, prep, lamp, report):
         """Cold start: wait for a confirmed lamp, then start from its recent track."""
         cfg = self.config
         t_m, obs = prep.t_ns, prep.obs
-        horizon = t_m - int(cfg.init_lookback_s * NS_PER_S)
-        self._preinit = [p for p in self._preinit if p.t_ns >= horizon]
+        self._cold.forget_before(t_m)
         if lamp is None:
-            self._preinit.append(prep)
+            self._cold.waiting.append(prep)
             self.monitor.counters.unconfirmed_skipped += 1
             report.fixes.append(FixRecord(t_m, None, None, 'waiting_for_uid'))
             return
@@ -848,20 +637,21 @@ class Localizer:
         if not geometry_ok:
             self._geometry_rejected(prep, lamp, fix, report)
             return
-        chain = self._lookback_chain(prep, lamp, fix)
-        self._preinit = []
+        chain = self._cold.chain(prep, lamp, fix, self._fix_for, self.lamp_map)
+        self._cold.clear()
         t0, fix0 = chain[0]
         i = self._insert_step(t0)
-        self._add_update(i, ('set', initial_state(fix0.chainage_m, fix0.var_m2, cfg.kalman)))
+        self._steps.add_update(i, ('set', initial_state(fix0.chainage_m, fix0.var_m2,
+                                                        cfg.kalman)))
         self._initialized = True
         self._has_fix = True
         # Published from the confirming frame on: the filtered states inside the lookback
         # span saw only part of the lamp's track.
-        self._init_ns = t_m
+        self._gate.start_ns = t_m
         self._systematic_var = fix0.var_systematic_m2
-        self._publish_pending = True
+        self._gate.fix_pending = True
         for t_k, fix_k in chain[1:]:
-            state = self._state_at(t_k)
+            state = self._steps.state_at(t_k)
             y, S = innovation(state, fix_k.chainage_m, fix_k.var_m2)
             if mahalanobis2(y, S) <= cfg.integrity.gate_chi2:
                 self._apply_fix(t_k, fix_k)
@@ -872,54 +662,16 @@ class Localizer:
                                    f'initialised at chainage {fix.chainage_m:.3f} m from lamp '
                                    f'{lamp.uid:#06x} and {len(chain) - 1} earlier frames of it'))
 
-    def _lookback_chain(self, prep, lamp, fix):
-        """[(t_ns, FixResult)] of lamp ``lamp``'s recent unconfirmed frames, oldest first.
-
-        Walking back from the confirmed frame, an unconfirmed observation joins the track
-        when, explained as ``lamp``, it lies within ``max_speed_mps`` of the newer track
-        point, and explained as any other map lamp it would not.
-        """
-        cfg = self.config
-        chain = [(prep.t_ns, fix)]
-        anchor_t, anchor = prep.t_ns, fix
-        others = [other.track_chainage_m - lamp.track_chainage_m
-                  for other in self.lamp_map.near_chainage(lamp.track_chainage_m, 60.0, 60.0)
-                  if other.uid != lamp.uid]
-        for old in sorted(self._preinit, key=lambda p: -p.t_ns):
-            if old.t_ns >= anchor_t:
-                continue
-            f, geometry_ok = self._fix_for(old, lamp)
-            if not geometry_ok:
-                continue
-            reach = (cfg.max_speed_mps * (anchor_t - old.t_ns) * 1e-9
-                     + 4.0 * math.sqrt(f.var_m2 + anchor.var_m2))
-            if abs(f.chainage_m - anchor.chainage_m) > reach:
-                continue
-            # Explained as another lamp (dx further along), the fix would move by dx.
-            if any(abs(f.chainage_m + dx - anchor.chainage_m) <= reach for dx in others):
-                continue
-            chain.append((old.t_ns, f))
-            anchor_t, anchor = old.t_ns, f
-        return chain[::-1]
-
     def _set_chainage(self, i, chainage_m, var_m2, keep_speed):
-        """Restart the chainage at step ``i``: ``chainage_m`` with variance ``var_m2``,
-        uncorrelated with the rest; ``keep_speed`` keeps the speed and bias covariance,
-        else their variances are raised to at least ``reinit_speed_sigma_mps`` and
-        ``initial_bias_sigma_mps2`` (a state that far off had its speed wrong too).
-        Returns the state it replaced.
+        """Restart the chainage at step ``i`` (see
+        :func:`~train_localizer.core.initialisation.restarted_chainage`); returns the state
+        it replaced.
         """
-        old = self._x[i]
-        P = np.zeros((3, 3))
-        P[0, 0] = var_m2
-        if keep_speed:
-            P[1:, 1:] = old.P[1:, 1:]
-        else:
-            P[1, 1] = max(old.P[1, 1], self.config.integrity.reinit_speed_sigma_mps ** 2)
-            P[2, 2] = max(old.P[2, 2], self.config.kalman.initial_bias_sigma_mps2 ** 2)
-        x = old.x.copy()
-        x[0] = chainage_m
-        self._add_update(i, ('set', FilterState(x, P)))
+        old = self._steps.x[i]
+        cfg = self.config
+        self._steps.add_update(i, ('set', restarted_chainage(
+            old, chainage_m, var_m2, keep_speed, cfg.integrity.reinit_speed_sigma_mps,
+            cfg.kalman.initial_bias_sigma_mps2)))
         return old
 
     def _reinitialise(self, t_m, fix, decision, report):
@@ -928,7 +680,7 @@ class Localizer:
         i = self._insert_step(t_m)
         old = self._set_chainage(i, fix.chainage_m, fix.var_m2, keep_speed=decision == 'offset')
         self._systematic_var = fix.var_systematic_m2
-        self._publish_pending = True
+        self._gate.fix_pending = True
         self.monitor.on_reinitialised()
         self.monitor.on_accepted(t_m, True)
         why = ('two confirmed lamps contradict the state by the same offset'
@@ -954,14 +706,15 @@ class Localizer:
         self.monitor.on_accepted(t_m, True)
         report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
                                       fix.var_m2))
-        if self._last_pub_ns is not None and t_m <= self._last_pub_ns:
+        gate = self._gate
+        if gate.last_pub_ns is not None and t_m <= gate.last_pub_ns:
             return
         cov = self._position_cov(fix.chainage_m, fix.var_m2)
         q, att_cov = self._orientation(t_m)
         report.poses.append(PoseEstimate(t_m, fix.position_m.copy(), cov, float('nan'),
-                                         float('nan'), q, att_cov, self._gyro_at(t_m), 'raw',
-                                         fix.chainage_m, fix.var_m2))
-        self._last_pub_ns = t_m
+                                         float('nan'), q, att_cov, self._steps.gyro_at(t_m),
+                                         'raw', fix.chainage_m, fix.var_m2))
+        gate.last_pub_ns = t_m
 
     # ----------------------------------------------------------------- output
     def _position_cov(self, chainage_m, chainage_var):
@@ -979,53 +732,27 @@ class Localizer:
             cov = np.diag(np.square(self.config.attitude_sigma_floor_rad))
         return q, cov
 
-    def _gyro_at(self, t):
-        i = self._index_at_or_before(t)
-        return self._gyro[i].copy() if i >= 0 else np.zeros(3)
+    def _published_var(self, t):
+        """Published chainage variance at ``t``: filter plus the last fix's systematic part."""
+        state = self._steps.state_at(t)
+        return state.P[0, 0] + self._systematic_var
 
     def _pose(self, t, kind):
-        state = self._state_at(t)
+        state = self._steps.state_at(t)
         s = float(state.x[0])
         var = float(state.P[0, 0] + self._systematic_var)
         q, att_cov = self._orientation(t)
         return PoseEstimate(t, self.config.fix.track.position(s), self._position_cov(s, var),
                             float(state.x[1]), float(state.P[1, 1]), q, att_cov,
-                            self._gyro_at(t), kind, s, var)
-
-    def _may_publish(self, t):
-        """After a cold start, hold the output until the chainage 1σ is below
-        ``max_sigma_m`` (a single-frame start does not know the speed yet); from then on
-        every pose is published, with its covariance and the integrity state saying how
-        good it is.
-        """
-        if not self._publishing:
-            state = self._state_at(t)
-            sigma2 = state.P[0, 0] + self._systematic_var
-            self._publishing = sigma2 <= self.config.integrity.max_sigma_m ** 2
-        return self._publishing
+                            self._steps.gyro_at(t), kind, s, var)
 
     def _emit(self, report):
-        """Grid poses up to the newest step, then the post-fix pose if one is due."""
-        if not self._t or not self.config.use_kalman:
+        """The grid poses up to the newest step, then the post-fix pose if one is due."""
+        if not self._steps.t or not self.config.use_kalman:
             return
-        newest = self._t[-1]
-        if self._next_grid_ns is not None and newest - self._next_grid_ns > NS_PER_S:
-            # A jump forward: do not flood the output with a second of grid poses.
-            self._next_grid_ns = (newest // self._period_ns) * self._period_ns
-        while self._next_grid_ns is not None and self._next_grid_ns <= newest:
-            g = self._next_grid_ns
-            self._next_grid_ns += self._period_ns
-            if (self._initialized and g >= self._init_ns
-                    and (self._last_pub_ns is None or g > self._last_pub_ns)
-                    and self._may_publish(g)):
-                report.poses.append(self._pose(g, 'grid'))
-                self._last_pub_ns = g
-        if (self._publish_pending and self._initialized
-                and (self._last_pub_ns is None or newest > self._last_pub_ns)
-                and self._may_publish(newest)):
-            report.poses.append(self._pose(newest, 'fix'))
-            self._last_pub_ns = newest
-            self._publish_pending = False
+        for t, kind in self._gate.due(self._steps.t[-1], self._initialized,
+                                      self._published_var):
+            report.poses.append(self._pose(t, kind))
 
     def _time_reset(self, report, t, newest):
         self.monitor.counters.time_resets += 1
