@@ -5,5 +5,5 @@ set -eo pipefail
 cd "$VLC_WS"
 rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
 # lint first (config: ruff.toml), then every test tier
-ruff check src tests conftest.py
+ruff check src tests scripts conftest.py
 python -m pytest "$@"

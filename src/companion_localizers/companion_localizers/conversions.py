@@ -14,8 +14,8 @@ import numpy as np
 
 from companion_localizers.core.rssi import LampReading
 from train_localizer.conversions import (  # noqa: F401
+    CameraInfoIntrinsics,
     imu_from_msg,
-    intrinsics_from_camera_info,
     ns_to_stamp,
     stamp_to_ns,
 )

@@ -39,15 +39,12 @@ Bad input (NaN, negative speed, stamps out of order) is counted, warned about
 from dataclasses import dataclass, fields
 import math
 import sys
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterType
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
@@ -63,9 +60,10 @@ from companion_localizers.core.curvature import (
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.process import spin_until_shutdown
+from vlc_common.process import run_node
+from vlc_common.stamps import stamp_to_s
+from vlc_common.throttled_log import ThrottledWarnings
 
-EXIT_INVALID_CONFIG = 2
 _STR = ParameterType.PARAMETER_STRING
 # diagnostic_msgs/DiagnosticStatus levels as ints (conversions.diagnostic_status packs them)
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN,
@@ -171,10 +169,6 @@ def declare_and_read(node):
     return CurvatureNodeConfig(core=core, **v)
 
 
-def _stamp_s(stamp):
-    return stamp.sec + stamp.nanosec / NS_PER_S
-
-
 class CurvatureNode(Node):
     """ROS wrapper of :class:`CurvatureLocalizer`; see the module docstring."""
 
@@ -184,7 +178,7 @@ class CurvatureNode(Node):
         self.core = CurvatureLocalizer(Alignment.named(cfg.alignment), cfg.core,
                                        cfg.match_period_s, cfg.speed_timeout_s, cfg.speed_scale)
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._last_warn = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), self.config.warn_throttle_s)
         self._imu_count = 0
         self._speed_count = 0
         self._matches = 0
@@ -215,15 +209,12 @@ class CurvatureNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _warn(self, kind, text):
-        now = time.monotonic()
-        if now - self._last_warn.get(kind, -math.inf) >= self.config.warn_throttle_s:
-            self._last_warn[kind] = now
-            self.get_logger().warn(text)
+        self._warnings.warn(kind, text)
 
     def _on_imu(self, msg):
         self._imu_count += 1
         rejected = self.core.imu_rejected
-        t = _stamp_s(msg.header.stamp)
+        t = stamp_to_s(msg.header.stamp)
         matches = self.core.add_imu(t, float(msg.angular_velocity.z))
         if self.core.imu_rejected > rejected:
             self._warn('imu', f'imu/data_raw: skipped a sample at {t:.6f} s (non-finite rate '
@@ -236,7 +227,7 @@ class CurvatureNode(Node):
         rejected = self.core.speed_rejected
         v = msg.twist.twist.linear
         speed = math.sqrt(v.x * v.x + v.y * v.y + v.z * v.z)
-        t = _stamp_s(msg.header.stamp)
+        t = stamp_to_s(msg.header.stamp)
         matches = self.core.add_speed(t, speed)
         if self.core.speed_rejected > rejected:
             self._warn('speed', f'{self.config.odometry_topic}: skipped a speed at {t:.6f} s '
@@ -333,26 +324,8 @@ class CurvatureNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = CurvatureNode()
-    except (ValueError, ParameterException) as exc:
-        rclpy.logging.get_logger('curvature_node').fatal(
-            f'invalid configuration, not starting: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(EXIT_INVALID_CONFIG)
-    except KeyboardInterrupt:
-        # SIGINT while the template was being built: a normal stop.
-        rclpy.try_shutdown()
-        return
-    try:
-        # SIGINT during a long callback (a match) shuts the context down before the
-        # executor builds its next wait set: a stop, handled by spin_until_shutdown.
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(CurvatureNode, 'curvature_node', args)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

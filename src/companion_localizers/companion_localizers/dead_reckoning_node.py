@@ -19,8 +19,8 @@ from companion_localizers.core.dead_reckoning import (
     ImageStillConfig,
 )
 from companion_localizers.frame_node import ImuFrameNode, common_config_kwargs
-from companion_localizers.node_main import run_node
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import run_node
 
 
 class DeadReckoningNode(ImuFrameNode):

@@ -24,22 +24,19 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 from companion_localizers import conversions
 from companion_localizers.core.along_track import FilterSettings
 from companion_localizers.core.ranging import RangingConfig
-from train_localizer.core.fix import RigGeometry
-from train_localizer.core.join import FrameJoiner, JoinConfig
-from train_localizer.core.kalman import KalmanConfig
-from train_localizer.core.standstill import StandstillConfig
-from vlc_common.core.camera import StereoRig
+from train_localizer import node_parameters as params
+from train_localizer.core.join import FrameJoiner
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.throttled_log import ThrottledWarnings
 
-_RIG = StereoRig()
 _DEG = math.pi / 180.0
 OK, WARN = 0, 1
 
 # name, default, descriptor — documented key by key in each node's config/<node>.yaml
 COMMON_PARAMETERS = (
     ('map_frame_id', 'map', _desc('Frame of the published poses.')),
-    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_common's default map.")),
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
     ('max_sigma_m', 1.0, _desc('Poses are published only while the chainage 1-sigma is below '
                                'this, m ...', 1e-3, 1e4)),
@@ -61,72 +58,18 @@ COMMON_PARAMETERS = (
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
     ('warn_throttle_s', 2.0, _desc('Minimum interval between two warnings of one kind, s.',
                                    0.0, 600.0)),
-    ('accel_noise_density_mps2_rthz', 0.01, _desc('Along-track acceleration white noise, '
-                                                  'm/s^2/sqrt(Hz).', 0.0, 10.0)),
-    ('bias_random_walk_mps3_rthz', 2e-3, _desc('Acceleration bias random walk, '
-                                               'm/s^3/sqrt(Hz).', 0.0, 10.0)),
-    ('initial_bias_sigma_mps2', 0.2, _desc('1-sigma acceleration bias at start, m/s^2.',
-                                           0.0, 10.0)),
-    ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at start, m/s.', 0.0, 200.0)),
     ('history_s', 2.0, _desc('How far back a measurement may be applied, s.', 0.05, 60.0)),
-    ('use_zero_velocity', True, _desc('Zero-velocity updates at standstill.')),
-    ('standstill_window_s', 0.25, _desc('Standstill detector window, s.', 0.01, 10.0)),
-    ('standstill_gyro_std_max_rps', 0.005, _desc('Standstill: max angular-rate std, rad/s.',
-                                                 0.0, 10.0)),
-    ('standstill_accel_std_max_mps2', 0.05, _desc('Standstill: max specific-force std, m/s^2.',
-                                                  0.0, 100.0)),
-    ('zero_velocity_max_speed_mps', 0.3, _desc('Zero-velocity update only below this speed '
-                                               '(+2 sigma), m/s.', 0.0, 10.0)),
-    ('zero_velocity_sigma_mps', 0.01, _desc('1-sigma of a zero-velocity update, m/s.',
-                                            1e-6, 10.0)),
-    ('use_camera_info', True, _desc('Take intrinsics and baseline from camera_info.')),
-    ('fx', _RIG.intrinsics.fx, _desc('Rectified focal length x (until camera_info), px.',
-                                     1.0, 1e5)),
-    ('fy', _RIG.intrinsics.fy, _desc('Rectified focal length y, px.', 1.0, 1e5)),
-    ('cx', _RIG.intrinsics.cx, _desc('Principal point x, px.', -1e5, 1e5)),
-    ('cy', _RIG.intrinsics.cy, _desc('Principal point y, px.', -1e5, 1e5)),
-    ('baseline_m', _RIG.baseline_m, _desc('Stereo baseline, m.', 1e-3, 10.0)),
-    ('mount_x_m', float(_RIG.mount_xyz_m[0]), _desc('Left optical centre x in base_link, m.',
-                                                    -20.0, 20.0)),
-    ('mount_y_m', float(_RIG.mount_xyz_m[1]), _desc('Left optical centre y in base_link, m.',
-                                                    -5.0, 5.0)),
-    ('mount_z_m', float(_RIG.mount_xyz_m[2]), _desc('Left optical centre z in base_link, m.',
-                                                    -5.0, 10.0)),
-    ('placement_angle_deg', _RIG.placement_angle_deg,
-     _desc('Optical axis turned from the wall normal toward +x (paper eq. 16), deg.',
-           -90.0, 90.0)),
-    ('pitch_deg', _RIG.pitch_deg, _desc('Optical axis tilt below horizontal, deg.',
-                                        -90.0, 90.0)),
-    ('row_time_s', 30e-6, _desc('Rolling-shutter row time, s.', 0.0, 1e-2)),
-    ('exposure_s', 25e-6, _desc('Row exposure time, s.', 0.0, 0.1)),
-    ('track_offset_y_m', 0.0, _desc('Nominal lateral position of base_link in map, m.',
-                                    -10.0, 10.0)),
-    ('track_offset_z_m', 0.0, _desc('Nominal height of base_link in map, m.', -10.0, 10.0)),
-    ('track_sigma_y_m', 0.004, _desc('1-sigma lateral offset of base_link from the track, m.',
-                                     0.0, 1.0)),
-    ('track_sigma_z_m', 0.004, _desc('1-sigma vertical offset of base_link from the track, m.',
-                                     0.0, 1.0)),
     ('survey_sigma_m', 0.005, _desc('1-sigma of a lamp\'s surveyed chainage, m.', 0.0, 10.0)),
     ('min_along_m', 0.3, _desc('Lamps nearer than this along the track (abeam) are not '
                                'ranged, m.', 0.0, 10.0)),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
     ('attitude_sigma_deg', [0.05, 0.05, 0.1], _desc('Attitude 1-sigma about map x, y, z when '
                                                     'imu/data carries no covariance, deg.')),
-    ('join_match_radius_px', 12.0, _desc('Max left-image distance lamp record - spot pair, px.',
-                                         0.0, 2000.0)),
-    ('join_timeout_s', 1.0, _desc('Longest wait for the other half of a frame, s (the '
-                                  'decoder may lag the spot locator by tenths of a second '
-                                  'on a loaded machine; the filter replays up to history_s).',
-                                  0.0, 10.0)),
     ('join_max_pending', 40, _desc('Frames waiting for their other half at most.', 1, 1000,
                                    integer=True)),
-)
-
-
-def join_config(p):
-    """JoinConfig from the parameter values."""
-    return JoinConfig(match_radius_px=p['join_match_radius_px'], timeout_s=p['join_timeout_s'],
-                      max_pending=p['join_max_pending'])
+) + (params.STEREO_PARAMETERS + params.TRACK_PARAMETERS + params.KALMAN_PARAMETERS
+     + params.STANDSTILL_PARAMETERS
+     + params.with_defaults(params.JOIN_PARAMETERS, join_timeout_s=1.0))
 
 
 def common_config_kwargs(p):
@@ -134,20 +77,9 @@ def common_config_kwargs(p):
     for name, size in (('attitude_sigma_deg', 3), ('tilt_prior_sigma_deg', 2)):
         if len(p[name]) != size:
             raise ValueError(f'{name} needs {size} values, got {list(p[name])}')
-    kalman = KalmanConfig(accel_noise_density_mps2_rthz=p['accel_noise_density_mps2_rthz'],
-                          bias_random_walk_mps3_rthz=p['bias_random_walk_mps3_rthz'],
-                          initial_bias_sigma_mps2=p['initial_bias_sigma_mps2'],
-                          initial_speed_sigma_mps=p['initial_speed_sigma_mps'])
-    standstill = StandstillConfig(
-        enabled=p['use_zero_velocity'], window_s=p['standstill_window_s'],
-        gyro_std_max_rps=p['standstill_gyro_std_max_rps'],
-        accel_std_max_mps2=p['standstill_accel_std_max_mps2'],
-        max_speed_mps=p['zero_velocity_max_speed_mps'],
-        speed_sigma_mps=p['zero_velocity_sigma_mps'])
-    geometry = RigGeometry.from_mount(
-        (p['mount_x_m'], p['mount_y_m'], p['mount_z_m']), p['placement_angle_deg'],
-        p['pitch_deg'], fx=p['fx'], fy=p['fy'], cx=p['cx'], cy=p['cy'],
-        baseline_m=p['baseline_m'], row_time_s=p['row_time_s'], exposure_s=p['exposure_s'])
+    kalman = params.kalman_config(p)
+    standstill = params.standstill_config(p)
+    geometry = params.rig_geometry(p)
     ranging = RangingConfig(track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
                             track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
                             min_along_m=p['min_along_m'],
@@ -182,11 +114,12 @@ class ImuFrameNode(Node):
         path = resolve_lamp_map_path(p['lamp_map_path'])
         self.lamp_map = LampMap.load(path)
         self.core = self.make_core(p, self.lamp_map)
-        self.joiner = FrameJoiner(join_config(p))
+        self.joiner = FrameJoiner(params.join_config(p, max_pending=p['join_max_pending']))
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._last_warn = {}
-        self._infos = [None, None]
-        self._intrinsics_source = 'parameters'
+        self._warnings = ThrottledWarnings(self.get_logger(), self.params['warn_throttle_s'],
+                                           clock=self._now_s)
+        self._intrinsics = conversions.CameraInfoIntrinsics(self.core.config.geometry,
+                                                            p['use_camera_info'])
         self._published = 0
         self._last_pose = None
         self._join_timer = conversions.CpuTimer()
@@ -258,22 +191,13 @@ class ImuFrameNode(Node):
         self._process(self.joiner.flush(self._now_s()))
 
     def _on_camera_info(self, index, msg):
-        if not self.params['use_camera_info']:
-            return
-        self._infos[index] = msg
-        if self._infos[0] is None or self._infos[1] is None:
-            return
-        try:
-            fx, fy, cx, cy, baseline = conversions.intrinsics_from_camera_info(*self._infos)
-        except ValueError as exc:
-            self._warn('camera_info', f'camera_info ignored: {exc}')
-            return
-        g = self.core.config.geometry
-        if (g.fx, g.fy, g.cx, g.cy, g.baseline_m) != (fx, fy, cx, cy, baseline):
-            g.fx, g.fy, g.cx, g.cy, g.baseline_m = fx, fy, cx, cy, baseline
-            self.get_logger().info(f'intrinsics from camera_info: fx {fx:.2f} fy {fy:.2f} '
-                                   f'cx {cx:.2f} cy {cy:.2f} px, baseline {baseline:.4f} m')
-        self._intrinsics_source = 'camera_info'
+        said = self._intrinsics.update(index, msg)
+        if said is not None:
+            level, text = said
+            if level == 'warn':
+                self._warn('camera_info', text)
+            else:
+                self.get_logger().info(text)
 
     def _process(self, frames):
         for stamp_ns, observations in frames:
@@ -285,12 +209,7 @@ class ImuFrameNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _warn(self, code, message):
-        now = self._now_s()
-        last = self._last_warn.get(code)
-        if last is not None and now - last < self.params['warn_throttle_s']:
-            return
-        self._last_warn[code] = now
-        self.get_logger().warning(message)
+        self._warnings.warn(code, message)
 
     def _now_s(self):
         return self._steady.now().nanoseconds * 1e-9
@@ -306,7 +225,7 @@ class ImuFrameNode(Node):
                   'bad_observations': c.bad_observations,
                   'zero_velocity_updates': c.zero_velocity_updates,
                   'measurements_dropped_old': c.measurements_dropped_old,
-                  'intrinsics': self._intrinsics_source}
+                  'intrinsics': self._intrinsics.source}
         level, message = OK, 'positioning'
         if state is None:
             level, message = WARN, 'waiting for imu/data'

@@ -17,8 +17,8 @@ import sys
 from companion_localizers.core.beacon_sequence import BeaconSequenceConfig
 from companion_localizers.core.ins_beacon import InsBeacon, InsBeaconConfig
 from companion_localizers.frame_node import WARN, ImuFrameNode, common_config_kwargs
-from companion_localizers.node_main import run_node
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import run_node
 
 
 class InsBeaconNode(ImuFrameNode):

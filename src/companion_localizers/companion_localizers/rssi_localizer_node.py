@@ -42,12 +42,14 @@ from sensor_msgs.msg import Imu, PointCloud2
 from companion_localizers import conversions
 from companion_localizers.core.attitude_prior import fuse_tilt
 from companion_localizers.core.rssi import SOLVE_MODES, RssiConfig, trilaterate
-from companion_localizers.node_main import run_node
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.rotations import quat_to_matrix
+from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
+from vlc_common.process import run_node
+from vlc_common.throttled_log import ThrottledWarnings
 
 NS_PER_S = 1_000_000_000
 #: Level values of diagnostic_msgs/DiagnosticStatus.
@@ -56,7 +58,9 @@ OK, WARN = 0, 1
 # name, default, descriptor — documented key by key in config/rssi_localizer_node.yaml
 PARAMETERS = (
     ('map_frame_id', 'map', _desc('Frame of the published poses.')),
-    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_common's default map.")),
+    ('vehicle_path', '', _desc("Vehicle mount file (the photodiode's position and normal); "
+                               "'' = share/vlc_common/config/vehicle.yaml.")),
     ('track_offset_y_m', 0.0, _desc('Nominal lateral position of base_link in map, m.',
                                     -10.0, 10.0)),
     ('track_offset_z_m', 0.0, _desc('Nominal height of base_link in map, m.', -10.0, 10.0)),
@@ -115,7 +119,7 @@ class RssiLocalizerNode(Node):
         self._tilt_prior = tuple(math.radians(v) for v in p['tilt_prior_sigma_deg'])
         self._unknown_cov = np.diag(np.square(np.radians(p['attitude_sigma_unknown_deg'])))
         self.config = RssiConfig(
-            photodiode=photodiode_config(channel),
+            photodiode=photodiode_config(channel, load_vehicle(p['vehicle_path']).photodiode),
             track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
             track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
             solve_mode=p['solve_mode'], min_lamps=p['min_lamps'],
@@ -134,7 +138,8 @@ class RssiLocalizerNode(Node):
                         'bad_records': 0, 'out_of_order': 0, 'no_attitude': 0}
         self._last_fix = None
         self._timer = conversions.CpuTimer()
-        self._last_warn = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), self.params['warn_throttle_s'],
+                                           clock=self._now_s)
 
         self.pub_pose = self.create_publisher(PoseStamped, 'companion/rssi/pose', 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
@@ -245,12 +250,7 @@ class RssiLocalizerNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _warn(self, code, message):
-        now = self._now_s()
-        last = self._last_warn.get(code)
-        if last is not None and now - last < self.params['warn_throttle_s']:
-            return
-        self._last_warn[code] = now
-        self.get_logger().warning(message)
+        self._warnings.warn(code, message)
 
     def _now_s(self):
         return self._steady.now().nanoseconds * 1e-9

@@ -15,31 +15,28 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Imu, PointCloud2, PointField  # noqa: E402
-from std_msgs.msg import Header  # noqa: E402
 import yaml  # noqa: E402
 
 from companion_localizers import frame_node  # noqa: E402
 from companion_localizers.dead_reckoning_node import DeadReckoningNode  # noqa: E402
 from companion_localizers.ins_beacon_node import InsBeaconNode  # noqa: E402
 from companion_localizers.rssi_localizer_node import PARAMETERS, RssiLocalizerNode  # noqa: E402
-from spot_locator.conversions import PAIR_DTYPE  # noqa: E402
-from train_localizer.conversions import ns_to_stamp  # noqa: E402
-from vlc_common.core.camera import StereoRig  # noqa: E402
 from vlc_common.core.optical_channel import PhotodiodeConfig  # noqa: E402
 from vlc_common.core.records import RSSI_DTYPE  # noqa: E402
 from vlc_common.core.rotations import quat_from_rpy  # noqa: E402
 from vlc_common.photodiode_channel import CHANNEL_PARAMETERS  # noqa: E402
 from vlc_common.pointcloud import records_to_cloud  # noqa: E402
-from vlc_decoder.conversions import LAMP_DTYPE  # noqa: E402
+from vlc_common.stamps import header  # noqa: E402
 from vlc_stereo_camera.core.photodiode import Photodiode  # noqa: E402
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration  # noqa: E402
-from vlc_stereo_camera.core.upstream import (  # noqa: E402
-    LAMPS,  # noqa: E402
-    SensorErrors,
-    SensorSimulator,
-    event_stream,
-)
+from vlc_stereo_camera.core.upstream import LAMPS, constant_speed_run  # noqa: E402
 from vlc_stereo_camera.photodiode_node import sample_records  # noqa: E402
+from vlc_stereo_camera.upstream_messages import (  # noqa: E402
+    CAMERA_FRAME,
+    imu_msg,
+    lamps_msg,
+    spots_msg,
+)
 
 PKG = pathlib.Path(__file__).resolve().parents[1]
 EPOCH_NS = 1704067200 * 10 ** 9
@@ -86,60 +83,16 @@ def _make(ctx, cls, **params):
     return node
 
 
-def _header(stamp_ns, frame='camera_left_optical_frame'):
-    return Header(stamp=ns_to_stamp(stamp_ns), frame_id=frame)
-
-
-def _imu(sample):
-    msg = Imu(header=_header(sample.stamp_ns, 'base_link'))
-    a, w, q = sample.accel_mps2, sample.gyro_rps, sample.quat_xyzw
-    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = map(float, a)
-    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = map(float, w)
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
-    msg.orientation_covariance = [float(v) for v in sample.attitude_cov_rad2.ravel()]
-    return msg
-
-
-def _spots(stamp_ns, observations):
-    rec = np.zeros(len(observations), dtype=PAIR_DTYPE)
-    for i, o in enumerate(observations):
-        rec[i]['u_left'], rec[i]['v_left'] = o.uv_left
-        rec[i]['u_right'], rec[i]['v_right'] = o.uv_right
-        rec[i]['disparity'] = o.disparity_px
-        rec[i]['stamp_offset_s'] = math.nan
-        for f in ('sigma_u_left', 'sigma_v_left', 'sigma_u_right', 'sigma_v_right'):
-            rec[i][f] = o.sigma_u_px
-        rec[i]['sigma_disparity'] = math.sqrt(2.0) * o.sigma_u_px
-    return records_to_cloud(rec, _header(stamp_ns))
-
-
-def _lamps(stamp_ns, observations):
-    rec = np.zeros(len(observations), dtype=LAMP_DTYPE)
-    for i, o in enumerate(observations):
-        rec[i]['track_id'] = i + 1
-        rec[i]['uid'] = o.uid or 0
-        rec[i]['state'] = 2 if o.uid is not None else 1
-        rec[i]['left_u'], rec[i]['left_v'] = o.uv_left[0] + 0.6, o.uv_left[1] - 0.4
-    return records_to_cloud(rec, _header(stamp_ns))
-
-
-def _simulated(speed_kmh=60.0, t_end=3.0, seed=2):
-    traj = Trajectory(MotionProfile('constant', start_chainage_m=3.0, speed_mps=speed_kmh / 3.6),
-                      Vibration(seed=seed))
-    sim = SensorSimulator(traj, StereoRig(), LAMPS, SensorErrors(), np.random.default_rng(seed))
-    return traj, event_stream(sim, 0.0, t_end)
-
-
 def _drive(node, events, edit=None):
     for _, kind, payload in events:
         if kind == 'imu':
-            node._on_imu(_imu(payload))
+            node._on_imu(imu_msg(payload))
         else:
             stamp, observations, truth = payload
             if edit is not None:
                 edit(stamp, observations, truth)
-            node._on_spots(_spots(stamp, observations))
-            node._on_lamps(_lamps(stamp, observations))
+            node._on_spots(spots_msg(stamp, observations))
+            node._on_lamps(lamps_msg(stamp, observations))
 
 
 def _errors(node, traj):
@@ -152,7 +105,7 @@ def _errors(node, traj):
 @pytest.mark.parametrize('cls', [DeadReckoningNode, InsBeaconNode])
 def test_frame_nodes_publish_poses_against_truth_on_the_grid(ctx, cls):
     node = _make(ctx, cls)
-    traj, events = _simulated()
+    traj, events = constant_speed_run(60.0, 3.0, 2, start_chainage_m=3.0)
     _drive(node, events)
     err, t = _errors(node, traj)
     assert len(node.poses) > 50
@@ -169,7 +122,7 @@ def test_frame_nodes_publish_poses_against_truth_on_the_grid(ctx, cls):
 
 def test_ins_node_reports_a_forged_lamp_on_diagnostics(ctx):
     node = _make(ctx, InsBeaconNode)
-    traj, events = _simulated(seed=4, t_end=3.5)
+    traj, events = constant_speed_run(60.0, 3.5, 4, start_chainage_m=3.0)
 
     def forge(stamp, observations, truth):
         for obs, tr in zip(observations, truth):
@@ -190,21 +143,22 @@ def test_ins_node_reports_a_forged_lamp_on_diagnostics(ctx):
 
 def test_frame_node_survives_bad_input(ctx):
     node = _make(ctx, InsBeaconNode)
-    traj, events = _simulated(t_end=1.5)
+    traj, events = constant_speed_run(60.0, 1.5, 2, start_chainage_m=3.0)
     _drive(node, events)
     n = len(node.poses)
-    broken = PointCloud2(header=_header(EPOCH_NS), height=1, width=1, point_step=8,
+    broken = PointCloud2(header=header(EPOCH_NS, CAMERA_FRAME), height=1, width=1,
+                         point_step=8,
                          fields=[PointField(name='u_left', offset=0, datatype=7, count=1)],
                          data=bytes(8))
     node._on_spots(broken)
-    truncated = _spots(EPOCH_NS, [o for _, k, p in events if k == 'frame' for o in p[1]][:1])
+    truncated = spots_msg(EPOCH_NS, [o for _, k, p in events if k == 'frame' for o in p[1]][:1])
     truncated.data = truncated.data[:10]
     node._on_spots(truncated)
     last = [p for _, k, p in events if k == 'imu'][-1]
-    bad = _imu(last)
+    bad = imu_msg(last)
     bad.linear_acceleration.x = float('nan')
     node._on_imu(bad)                                     # non-finite: refused
-    node._on_imu(_imu(last))                              # not newer: refused
+    node._on_imu(imu_msg(last))                           # not newer: refused
     assert node.core.counters.imu_rejected == 2
     assert len(node.poses) == n
 
@@ -216,13 +170,13 @@ def _pd_messages(t_end=2.0, seed=3, speed_kmh=60.0):
     msgs = []
     for n in range(int(t_end * 50)):
         msgs.append(records_to_cloud(sample_records(pd.sample(n, 50.0)),
-                                     _header(EPOCH_NS + n * 20_000_000, 'photodiode_link')))
+                                     header(EPOCH_NS + n * 20_000_000, 'photodiode_link')))
     return traj, msgs
 
 
 def _rssi_imu(traj, t_s):
     truth = traj.sample(t_s)
-    msg = Imu(header=_header(EPOCH_NS + int(round(t_s * 1e9)), 'base_link'))
+    msg = Imu(header=header(EPOCH_NS + int(round(t_s * 1e9)), 'base_link'))
     q = quat_from_rpy(*truth.rpy_rad[0])
     msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = map(float, q)
     msg.orientation_covariance = [float(v) for v in np.diag(
@@ -255,12 +209,12 @@ def test_rssi_node_survives_bad_input(ctx):
     rec = np.zeros(3, dtype=RSSI_DTYPE)
     rec['uid'] = [0x7ABC, 4098, 4099]                    # unknown UID, then a NaN power
     rec['power_w'] = [1e-6, math.nan, 1e-6]
-    node._on_rssi(records_to_cloud(rec, _header(EPOCH_NS + 10 ** 9)))
+    node._on_rssi(records_to_cloud(rec, header(EPOCH_NS + 10 ** 9, CAMERA_FRAME)))
     assert node._counts['unknown_uid'] == 1 and node._counts['bad_records'] == 1
     node._on_rssi(msgs[0])                                # older than the last: skipped
     assert node._counts['out_of_order'] == 1
-    missing = PointCloud2(header=_header(EPOCH_NS + 2 * 10 ** 9), height=1, width=1,
-                          point_step=4, data=bytes(4),
+    missing = PointCloud2(header=header(EPOCH_NS + 2 * 10 ** 9, CAMERA_FRAME), height=1,
+                          width=1, point_step=4, data=bytes(4),
                           fields=[PointField(name='uid', offset=0, datatype=6, count=1)])
     node._on_rssi(missing)
     assert node._counts['bad_records'] == 2

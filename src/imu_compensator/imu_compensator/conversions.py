@@ -11,17 +11,7 @@ import math
 
 import numpy as np
 
-NS_PER_S = 1_000_000_000
-
-
-def stamp_to_s(stamp):
-    """builtin_interfaces/Time → float seconds."""
-    return stamp.sec + stamp.nanosec * 1e-9
-
-
-def stamp_to_ns(stamp):
-    """builtin_interfaces/Time → integer nanoseconds."""
-    return stamp.sec * NS_PER_S + stamp.nanosec
+from vlc_common.stamps import stamp_to_ns, stamp_to_s  # noqa: F401 (stamp_to_ns re-exported)
 
 
 def imu_sample(msg):

@@ -39,10 +39,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 import numpy as np
 from rcl_interfaces.msg import ParameterType
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
@@ -52,14 +49,13 @@ from imu_compensator.core.attitude_filter import AttitudeFilterConfig
 from imu_compensator.core.compensator import AttitudeCompensator, CompensatorConfig, SampleStatus
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
+from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.polled import PolledSubscription
-from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_common.process import run_node
 from vlc_common.throttled_log import ThrottledWarnings
 
 DEG = math.pi / 180.0
-#: Exit code of an invalid configuration (as the rig's nodes).
-EXIT_INVALID_CONFIG = 2
 
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _STRING = ParameterType.PARAMETER_STRING
@@ -80,8 +76,9 @@ NODE_PARAMETERS = (
                                        'is warned about once).', ptype=_STRING)),
     ('base_frame_id', 'base_link', _desc('frame_id of imu/data: the platform whose attitude '
                                          'is estimated.', ptype=_STRING)),
-    ('imu_mount_rpy_rad', [0.0, 0.0, 0.0], _desc('Rotation of imu_link in base_link [roll, '
-                                                 'pitch, yaw], rad.', ptype=_ARRAY)),
+    ('vehicle_path', '', _desc("Vehicle mount file (the IMU's boresight: imu_link in "
+                               "base_link); '' = share/vlc_common/config/vehicle.yaml.",
+                               ptype=_STRING)),
     ('nominal_rate_hz', _C.nominal_rate_hz, _desc('Expected IMU rate, Hz.', 1.0, 5000.0)),
     ('publish_decimation', 1, _desc('Publish imu/data for every N-th accepted sample.',
                                     1, 1000, integer=True)),
@@ -228,8 +225,8 @@ def read_config(node):
     comp = CompensatorConfig(filter=filt, zero_velocity=zv,
                              nominal_rate_hz=v['nominal_rate_hz'], gap_s=v['gap_s'],
                              backward_reset_s=v['backward_reset_s'],
-                             imu_mount_rpy_rad=_triple('imu_mount_rpy_rad',
-                                                       v['imu_mount_rpy_rad']),
+                             imu_mount_rpy_rad=tuple(
+                                 float(a) for a in load_vehicle(v['vehicle_path']).imu.rpy_rad),
                              history_s=v['history_s'])
     return NodeConfig(
         imu_frame_id=v['imu_frame_id'], base_frame_id=v['base_frame_id'],
@@ -391,22 +388,7 @@ class ImuCompensatorNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = ImuCompensatorNode()
-    except (ParameterException, ValueError) as exc:
-        rclpy.logging.get_logger('imu_compensator_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    try:
-        freeze_start_up_objects()
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(ImuCompensatorNode, 'imu_compensator_node', args)
 
 
 if __name__ == '__main__':

@@ -20,6 +20,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
 from imu_compensator.imu_compensator_node import ImuCompensatorNode
+from vlc_common.core.vehicle import ImuMount, VehicleMount
 
 pytestmark = pytest.mark.ros
 
@@ -175,10 +176,13 @@ def test_attitude_aiding_full_heading_only_and_malformed(ctx):
         h.close()
 
 
-def test_decimation_and_mount_rotation(ctx):
-    # IMU mounted rolled by 90°: its y axis is base_link's z, so gravity on y in imu_link
-    # must come out on z in base_link.
-    h = Harness(ctx, publish_decimation=4, imu_mount_rpy_rad=[math.pi / 2, 0.0, 0.0])
+def test_decimation_and_mount_rotation(ctx, tmp_path):
+    # IMU mounted rolled by 90° (vehicle file): its y axis is base_link's z, so gravity on
+    # y in imu_link must come out on z in base_link.
+    vehicle = VehicleMount()
+    vehicle.imu = ImuMount(rpy_rad=[math.pi / 2, 0.0, 0.0])
+    vehicle.save(tmp_path / 'vehicle.yaml')
+    h = Harness(ctx, publish_decimation=4, vehicle_path=str(tmp_path / 'vehicle.yaml'))
     try:
         h.send([raw(EPOCH_NS + k * PERIOD_NS, accel=(0.0, 9.80665, 0.0)) for k in range(41)])
         # Sample 0 (start) and every 4th accepted sample after it.
@@ -197,7 +201,7 @@ def test_invalid_parameters_are_refused(ctx):
             Parameter('heading_time_constant_s', value=-1.0)])
     with pytest.raises(ValueError):
         ImuCompensatorNode(context=ctx, parameter_overrides=[
-            Parameter('imu_mount_rpy_rad', value=[0.0, 0.0])])
+            Parameter('vehicle_path', value='/nonexistent/vehicle.yaml')])
     with pytest.raises(ValueError):
         # A pull time constant shorter than its averaging window.
         ImuCompensatorNode(context=ctx, parameter_overrides=[

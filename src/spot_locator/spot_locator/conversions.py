@@ -3,45 +3,12 @@
 ``spots/pairs`` layout: :data:`vlc_common.core.records.PAIR_DTYPE`.
 """
 
-import cv2
 import numpy as np
 
 from spot_locator.core.locator import StereoGeometry
 from vlc_common.core.records import PAIR_DTYPE  # noqa: F401 (re-exported)
+from vlc_common.images import image_to_array  # noqa: F401 (re-exported)
 from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401
-
-_CHANNELS = {'mono8': (np.uint8, 1), 'mono16': ('<u2', 1), '8UC1': (np.uint8, 1),
-             '16UC1': ('<u2', 1), 'rgb8': (np.uint8, 3), 'bgr8': (np.uint8, 3)}
-
-
-def image_to_array(msg):
-    """sensor_msgs/Image → (H, W) mono array (uint8 or uint16).
-
-    mono8/8UC1 and mono16/16UC1 are returned as they are; rgb8 and bgr8 are converted to
-    grey (ITU-R BT.601 weights). Raises ValueError on an unknown encoding and on empty or
-    truncated data.
-    """
-    if msg.encoding not in _CHANNELS:
-        raise ValueError(f'unsupported image encoding {msg.encoding!r}')
-    dtype, channels = _CHANNELS[msg.encoding]
-    dtype = np.dtype(dtype)
-    if msg.is_bigendian and dtype.itemsize > 1:
-        dtype = dtype.newbyteorder('>')
-    row_bytes = msg.width * channels * dtype.itemsize
-    if msg.height == 0 or msg.width == 0:
-        raise ValueError('empty image')
-    if msg.step < row_bytes:
-        raise ValueError(f'step {msg.step} B < width {msg.width} x {channels} x '
-                         f'{dtype.itemsize} B')
-    buf = np.frombuffer(msg.data, dtype=np.uint8)
-    if buf.size < msg.step * msg.height:
-        raise ValueError(f'image data {buf.size} B < {msg.height} rows x {msg.step} B')
-    rows = buf[:msg.step * msg.height].reshape(msg.height, msg.step)[:, :row_bytes]
-    img = np.ascontiguousarray(rows).view(dtype).reshape(msg.height, msg.width, channels)
-    if channels == 1:
-        return img[:, :, 0]
-    code = cv2.COLOR_RGB2GRAY if msg.encoding == 'rgb8' else cv2.COLOR_BGR2GRAY
-    return cv2.cvtColor(img, code)
 
 
 def stereo_geometry(left_info, right_info):

@@ -22,9 +22,8 @@ Publishes:
   spots and pairs.
 
 One thread: the image callback that completes a stereo pair processes it at once, as
-the decoder does (a worker thread fed from a queue cost 1.2 ms median, 2.7 ms p99,
-between the pair's arrival and the start of its processing: the executor's own Python
-runs first; docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty or
+the decoder does (a worker thread fed from a queue added a hand-over delay before every
+pair's processing: docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty or
 truncated image, left/right size mismatch, unpaired or out-of-order stamps) gives a
 throttled warning and is skipped.
 
@@ -44,9 +43,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import ParameterType
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -56,18 +53,21 @@ from spot_locator.core.centres import ChordConfig
 from spot_locator.core.detection import DetectConfig
 from spot_locator.core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from spot_locator.core.matching import MatchConfig
-from vlc_common.core.camera import StereoRig, mount_rotation
+from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.process import freeze_start_up_objects, keep_large_buffers, spin_until_shutdown
+from vlc_common.process import (
+    keep_large_buffers,
+    run_node,
+)
+from vlc_common.stamps import stamp_to_ns
+from vlc_common.throttled_log import ThrottledWarnings
 
-EXIT_INVALID_CONFIG = 2
 _WARN_PERIOD_S = 2.0
 
 
 _STR = ParameterType.PARAMETER_STRING
 _DARR = ParameterType.PARAMETER_DOUBLE_ARRAY
 # name, default, descriptor. Documented key by key in config/spot_locator_node.yaml.
-# The mounting defaults are the rig's (StereoRig), so both follow one definition.
 NODE_PARAMETERS = (
     ('method', 'chord', _desc('Centre estimator: ' + ' | '.join(METHODS) + '.', ptype=_STR)),
     ('eccentricity', 'conic', _desc('Perspective eccentricity correction: '
@@ -75,11 +75,9 @@ NODE_PARAMETERS = (
     ('lamp_diameter_m', 0.2, _desc('Lamp disc diameter, m.', 0.01, 2.0)),
     ('lamp_normal_map', [0.0, -1.0, 0.0], _desc('Unit disc normal of the lamps in map '
                                                 '(into the tunnel).', ptype=_DARR)),
-    ('placement_angle_deg', StereoRig.placement_angle_deg,
-     _desc('Camera optical axis turned from the wall normal toward the running direction '
-           '(paper eq. 16), deg.', 0.0, 89.0)),
-    ('pitch_deg', StereoRig.pitch_deg,
-     _desc('Camera optical axis tilted down, deg.', -60.0, 80.0)),
+    ('vehicle_path', '', _desc("Vehicle mount file (the camera's axis in base_link, for the "
+                               "nominal lamp normal and motion direction in the image); '' = "
+                               'share/vlc_common/config/vehicle.yaml.', ptype=_STR)),
     ('conic_normal_min_rows', 30, _desc('Spots at least this many rows tall give their own '
                                         'disc normal for the eccentricity correction.',
                                         3, 4096, integer=True)),
@@ -141,8 +139,7 @@ class SpotLocatorNodeConfig:
     eccentricity: str
     lamp_diameter_m: float
     lamp_normal_map: list
-    placement_angle_deg: float
-    pitch_deg: float
+    vehicle_path: str
     conic_normal_min_rows: int
     conic_normal_max_angle_deg: float
     rolling_shutter_model: bool
@@ -177,7 +174,7 @@ class SpotLocatorNodeConfig:
             raise ValueError('lamp_normal_map must be a non-zero 3-vector')
         if self.min_disparity_px >= self.max_disparity_px:
             raise ValueError('min_disparity_px must be < max_disparity_px')
-        R_base_cam = mount_rotation(self.placement_angle_deg, self.pitch_deg)
+        R_base_cam = load_vehicle(self.vehicle_path).camera.R_base_cam
         # Nominal attitude (straight track, no vibration): base_link axes = map axes.
         normal_cam = R_base_cam.T @ (normal_map / np.linalg.norm(normal_map))
         # Lamps move backwards past the train: -x of base_link, in the optical frame.
@@ -204,10 +201,6 @@ class SpotLocatorNodeConfig:
                               max_area_ratio=self.max_area_ratio))
 
 
-def _stamp_ns(stamp):
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 class SpotLocatorNode(Node):
     """See the module docstring."""
 
@@ -230,6 +223,7 @@ class SpotLocatorNode(Node):
                            out_of_order=0, stamp_resets=0, no_camera_info=0,
                            size_mismatch=0, failed=0, unmatched=0, border=0)
         self._proc_ms = deque(maxlen=200)
+        self._warnings = ThrottledWarnings(self.get_logger(), _WARN_PERIOD_S)
         # first calls into OpenCV/LAPACK/scipy/scikit-image are slow: pay them now, not
         # on the first frames (the geometry here is the nominal one; camera_info's
         # replaces it, the library state stays warm)
@@ -256,8 +250,8 @@ class SpotLocatorNode(Node):
                                f'{self._warm_up_ms:.0f} ms')
 
     # ------------------------------------------------------------ callbacks
-    def _warn(self, text):
-        self.get_logger().warning(text, throttle_duration_sec=_WARN_PERIOD_S)
+    def _warn(self, kind, text):
+        self._warnings.warn(kind, text)
 
     def _count(self, key, n=1):
         self._stats[key] += n
@@ -269,7 +263,7 @@ class SpotLocatorNode(Node):
         try:
             geometry = conversions.stereo_geometry(*self._infos)
         except ValueError as exc:
-            self._warn(f'camera_info unusable, keeping the previous geometry: {exc}')
+            self._warn('camera_info', f'camera_info unusable, keeping the previous geometry: {exc}')
             return
         if self._located is None or geometry != self._located[0]:
             self._located = (geometry, SpotLocator(self.locator_config, geometry))
@@ -280,10 +274,10 @@ class SpotLocatorNode(Node):
         if np.isfinite(speed):
             self._speed = (speed, time.monotonic())
         else:
-            self._warn('train/odometry speed is not finite; ignored')
+            self._warn('odometry', 'train/odometry speed is not finite; ignored')
 
     def _on_image(self, index, msg):
-        stamp = _stamp_ns(msg.header.stamp)
+        stamp = stamp_to_ns(msg.header.stamp)
         other = 1 - index
         jump_ns = self._last_stamp_ns - stamp
         if self._last_stamp_ns >= 0 and jump_ns > self._backward_reset_ns:
@@ -294,12 +288,12 @@ class SpotLocatorNode(Node):
                 side.clear()
             self._last_stamp_ns = -1
             self._stats['stamp_resets'] += 1
-            self._warn(f'image stamp jumped back by {jump_ns * 1e-9:.3f} s (more than '
-                       'backward_reset_s); stereo pairing reset')
+            self._warn('stamp_reset', f'image stamp jumped back by {jump_ns * 1e-9:.3f} s '
+                       '(more than backward_reset_s); stereo pairing reset')
         if stamp <= self._last_stamp_ns:
             self._stats['out_of_order'] += 1
-            self._warn(f'image stamp {stamp} ns is not newer than the last paired stamp; '
-                       'skipped')
+            self._warn('out_of_order', f'image stamp {stamp} ns is not newer than the last '
+                       'paired stamp; skipped')
             return
         partner = self._pending[other].pop(stamp, None)
         if partner is None:
@@ -321,31 +315,31 @@ class SpotLocatorNode(Node):
             self._process(left_msg, right_msg)
         except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node
             self._count('failed')
-            self._warn(f'frame processing failed, skipped: {exc!r}')
+            self._warn('failed', f'frame processing failed, skipped: {exc!r}')
 
     # ------------------------------------------------------------ processing
     def _process(self, left_msg, right_msg):
         located = self._located
         if located is None:
             self._count('no_camera_info')
-            self._warn('no camera_info for both cameras yet; stereo pair skipped')
+            self._warn('no_camera_info', 'no camera_info for both cameras yet; stereo pair skipped')
             return
         try:
             left = conversions.image_to_array(left_msg)
             right = conversions.image_to_array(right_msg)
         except ValueError as exc:
             self._count('bad_image')
-            self._warn(f'bad image, stereo pair skipped: {exc}')
+            self._warn('bad_image', f'bad image, stereo pair skipped: {exc}')
             return
         if left.shape != right.shape:
             self._count('size_mismatch')
-            self._warn(f'left {left.shape} and right {right.shape} image sizes differ; '
-                       'stereo pair skipped')
+            self._warn('size_mismatch', f'left {left.shape} and right {right.shape} image '
+                       'sizes differ; stereo pair skipped')
             return
         g, locator = located
         if left.shape != (g.height, g.width):
             self._count('size_mismatch')
-            self._warn(f'image size {left.shape[::-1]} differs from camera_info '
+            self._warn('size_mismatch', f'image size {left.shape[::-1]} differs from camera_info '
                        f'{(g.width, g.height)}; stereo pair skipped')
             return
         speed, received = self._speed
@@ -389,21 +383,8 @@ def main(args=None):
     # one core: the stereo pair is processed in a single thread by design
     cv2.setNumThreads(1)
     keep_large_buffers()
-    rclpy.init(args=args)
-    try:
-        node = SpotLocatorNode()
-    except (ParameterException, ValueError) as exc:
-        rclpy.logging.get_logger('spot_locator_node').fatal(
-            f'invalid configuration, not starting: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(EXIT_INVALID_CONFIG)
-    freeze_start_up_objects()
-    try:
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(SpotLocatorNode, 'spot_locator_node', args)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

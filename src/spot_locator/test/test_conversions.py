@@ -3,57 +3,13 @@ import pathlib
 
 import numpy as np
 import pytest
-from sensor_msgs.msg import CameraInfo, Image, PointField
+from sensor_msgs.msg import CameraInfo, PointField
 from std_msgs.msg import Header
 import yaml
 
 from spot_locator import conversions
 from spot_locator.core.locator import SpotPair, StereoGeometry
 from spot_locator.spot_locator_node import NODE_PARAMETERS
-
-
-def _image(arr, encoding, step=None, bigendian=False):
-    arr = np.ascontiguousarray(arr)
-    h, w = arr.shape[:2]
-    row = arr.reshape(h, -1).view(np.uint8)
-    step = row.shape[1] if step is None else step
-    buf = np.zeros((h, step), np.uint8)
-    buf[:, :row.shape[1]] = row
-    return Image(height=h, width=w, encoding=encoding, step=step,
-                 is_bigendian=int(bigendian), data=buf.tobytes())
-
-
-def test_mono_images_round_trip_with_row_padding():
-    img = np.random.default_rng(0).integers(0, 256, (5, 7), dtype=np.uint8)
-    for enc in ('mono8', '8UC1'):
-        np.testing.assert_array_equal(conversions.image_to_array(_image(img, enc, step=12)), img)
-    img16 = np.random.default_rng(1).integers(0, 65535, (4, 3)).astype('<u2')
-    np.testing.assert_array_equal(conversions.image_to_array(_image(img16, 'mono16')), img16)
-    big = _image(img16.astype('>u2'), '16UC1', bigendian=True)
-    np.testing.assert_array_equal(conversions.image_to_array(big), img16)
-
-
-def test_colour_images_are_converted_to_grey():
-    grey = np.random.default_rng(2).integers(0, 256, (6, 4), dtype=np.uint8)
-    rgb = np.stack([grey] * 3, axis=-1)
-    for enc in ('rgb8', 'bgr8'):
-        np.testing.assert_array_equal(conversions.image_to_array(_image(rgb, enc)), grey)
-    red = np.zeros((2, 2, 3), np.uint8)
-    red[..., 0] = 200
-    assert conversions.image_to_array(_image(red, 'rgb8'))[0, 0] == round(0.299 * 200)
-    assert conversions.image_to_array(_image(red, 'bgr8'))[0, 0] == round(0.114 * 200)
-
-
-@pytest.mark.parametrize('msg, text', [
-    (Image(height=4, width=4, encoding='yuv422', step=8, data=bytes(32)), 'encoding'),
-    (Image(height=0, width=0, encoding='mono8', step=0, data=b''), 'empty'),
-    (Image(height=4, width=4, encoding='mono8', step=4, data=bytes(10)), '<'),
-    (Image(height=4, width=4, encoding='mono8', step=2, data=bytes(16)), 'step'),
-    (Image(height=2, width=2, encoding='rgb8', step=6, data=bytes(11)), '<'),
-])
-def test_bad_images_raise_value_error(msg, text):
-    with pytest.raises(ValueError, match=text):
-        conversions.image_to_array(msg)
 
 
 def _info(p03, width=1280, height=720):

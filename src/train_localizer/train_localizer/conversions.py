@@ -14,25 +14,14 @@ PoseWithCovarianceStamped and Odometry; the integrity status → DiagnosticStatu
 """
 import math
 
-from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 
-from vlc_common.core.observation import NS_PER_S, ImuSample
+from vlc_common.core.observation import ImuSample
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
-
-
-def stamp_to_ns(stamp):
-    """builtin_interfaces/Time → integer ns."""
-    return int(stamp.sec) * NS_PER_S + int(stamp.nanosec)
-
-
-def ns_to_stamp(ns):
-    """Integer ns → builtin_interfaces/Time."""
-    sec, nanosec = divmod(int(ns), NS_PER_S)
-    return Time(sec=sec, nanosec=nanosec)
+from vlc_common.stamps import ns_to_stamp, stamp_to_ns  # noqa: F401 (re-exported)
 
 
 def require_fields(records, names, topic):
@@ -79,6 +68,41 @@ def intrinsics_from_camera_info(left, right):
     if not baseline > 0.0:
         raise ValueError(f'stereo baseline {baseline} m is not positive')
     return float(fx), float(fy), float(pl[0, 2]), float(pl[1, 2]), float(baseline)
+
+
+class CameraInfoIntrinsics:
+    """The left and right camera_info of a rectified pair, written into a RigGeometry.
+
+    ``update(index, msg)`` keeps message ``msg`` of camera ``index`` (0 left, 1 right);
+    once both are known their intrinsics and baseline replace the geometry's. Returns a
+    line to log when the geometry changed or the pair is unusable (``(level, text)``,
+    level ``info`` or ``warn``), else None. ``source`` says where the intrinsics came
+    from: ``parameters`` until a usable pair arrived, then ``camera_info``.
+    """
+
+    def __init__(self, geometry, enabled=True):
+        self.geometry = geometry
+        self.enabled = enabled
+        self.infos = [None, None]
+        self.source = 'parameters'
+
+    def update(self, index, msg):
+        if not self.enabled:
+            return None
+        self.infos[index] = msg
+        if self.infos[0] is None or self.infos[1] is None:
+            return None
+        try:
+            fx, fy, cx, cy, baseline = intrinsics_from_camera_info(*self.infos)
+        except ValueError as exc:
+            return 'warn', f'camera_info ignored: {exc}'
+        g = self.geometry
+        self.source = 'camera_info'
+        if (g.fx, g.fy, g.cx, g.cy, g.baseline_m) == (fx, fy, cx, cy, baseline):
+            return None
+        g.fx, g.fy, g.cx, g.cy, g.baseline_m = fx, fy, cx, cy, baseline
+        return 'info', (f'intrinsics from camera_info: fx {fx:.2f} fy {fy:.2f} cx {cx:.2f} '
+                        f'cy {cy:.2f} px, baseline {baseline:.4f} m')
 
 
 def _fill_pose(pose_msg, est):

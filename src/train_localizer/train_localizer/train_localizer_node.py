@@ -38,18 +38,16 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from train_localizer import conversions
-from train_localizer.core.fix import FixConfig, RigGeometry
+from train_localizer import node_parameters as params
+from train_localizer.core.fix import FixConfig
 from train_localizer.core.integrity import IntegrityConfig, Level
-from train_localizer.core.join import FrameJoiner, JoinConfig
-from train_localizer.core.kalman import KalmanConfig
+from train_localizer.core.join import FrameJoiner
 from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import (
     APPLIED,
@@ -61,16 +59,13 @@ from train_localizer.core.reacquisition import (
     ReacquisitionConfig,
     chainage_measurement,
 )
-from train_localizer.core.standstill import StandstillConfig
 from train_localizer.core.track import Track
-from vlc_common.core.camera import StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.polled import PolledSubscription
-from vlc_common.process import freeze_start_up_objects, spin_until_shutdown
+from vlc_common.process import run_node
 from vlc_common.throttled_log import ThrottledWarnings
 
-_RIG = StereoRig()
 _DEG = math.pi / 180.0
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
 
@@ -84,7 +79,7 @@ IMU_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
 PARAMETERS = (
     ('map_frame_id', 'map', _desc('Frame of the published poses.')),
     ('base_frame_id', 'base_link', _desc('Child frame of the odometry (the train head).')),
-    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_stereo_camera's default map.")),
+    ('lamp_map_path', '', _desc("Lamp map YAML; '' = vlc_common's default map.")),
     ('alignment', '', _desc("Track alignment (vlc_common.core.alignment names: "
                             "straight, curved_demo, ...); '' = the one the lamp map names.")),
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
@@ -102,34 +97,6 @@ PARAMETERS = (
     ('use_exposure_stamping', True, _desc('Stamp fixes at the spot exposure mid-time; false = '
                                           'image stamp.')),
     ('use_kalman', True, _desc('Kalman fusion with the IMU; false = raw single-frame fixes.')),
-    ('use_zero_velocity', True, _desc('Zero-velocity updates at standstill.')),
-    ('use_camera_info', True, _desc('Take intrinsics and baseline from camera_info.')),
-    ('fx', _RIG.intrinsics.fx, _desc('Rectified focal length x (until camera_info), px.',
-                                     1.0, 1e5)),
-    ('fy', _RIG.intrinsics.fy, _desc('Rectified focal length y, px.', 1.0, 1e5)),
-    ('cx', _RIG.intrinsics.cx, _desc('Principal point x, px.', -1e5, 1e5)),
-    ('cy', _RIG.intrinsics.cy, _desc('Principal point y, px.', -1e5, 1e5)),
-    ('baseline_m', _RIG.baseline_m, _desc('Stereo baseline, m.', 1e-3, 10.0)),
-    ('mount_x_m', float(_RIG.mount_xyz_m[0]), _desc('Left optical centre x in base_link, m.',
-                                                    -20.0, 20.0)),
-    ('mount_y_m', float(_RIG.mount_xyz_m[1]), _desc('Left optical centre y in base_link, m.',
-                                                    -5.0, 5.0)),
-    ('mount_z_m', float(_RIG.mount_xyz_m[2]), _desc('Left optical centre z in base_link, m.',
-                                                    -5.0, 10.0)),
-    ('placement_angle_deg', _RIG.placement_angle_deg,
-     _desc('Optical axis turned from the wall normal toward +x (paper eq. 16), deg.',
-           -90.0, 90.0)),
-    ('pitch_deg', _RIG.pitch_deg, _desc('Optical axis tilt below horizontal, deg.',
-                                        -90.0, 90.0)),
-    ('row_time_s', 30e-6, _desc('Rolling-shutter row time, s.', 0.0, 1e-2)),
-    ('exposure_s', 25e-6, _desc('Row exposure time, s.', 0.0, 0.1)),
-    ('track_sigma_y_m', 0.004, _desc('1-sigma lateral offset of base_link from the track, m.',
-                                     1e-6, 1.0)),
-    ('track_sigma_z_m', 0.004, _desc('1-sigma vertical offset of base_link from the track, m.',
-                                     1e-6, 1.0)),
-    ('track_offset_y_m', 0.0, _desc('Nominal lateral position of base_link in map, m.',
-                                    -10.0, 10.0)),
-    ('track_offset_z_m', 0.0, _desc('Nominal height of base_link in map, m.', -10.0, 10.0)),
     ('lamp_position_sigma_m', 0.005, _desc('1-sigma survey error per lamp coordinate, m.',
                                            0.0, 1.0)),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
@@ -139,14 +106,6 @@ PARAMETERS = (
      _desc('Smallest attitude 1-sigma about map x, y, z assumed for imu/data, deg.')),
     ('attitude_sigma_unknown_deg', [0.5, 0.5, 5.0],
      _desc('Attitude 1-sigma without an attitude (use_imu_attitude false), deg.')),
-    ('imu_lever_arm_m', [0.0, 0.0, 0.0], _desc('IMU position in base_link, m.')),
-    ('accel_noise_density_mps2_rthz', 0.01, _desc('Along-track acceleration white noise, '
-                                                  'm/s^2/sqrt(Hz).', 0.0, 10.0)),
-    ('bias_random_walk_mps3_rthz', 2e-3, _desc('Acceleration bias random walk, '
-                                               'm/s^3/sqrt(Hz).', 0.0, 10.0)),
-    ('initial_bias_sigma_mps2', 0.2, _desc('1-sigma acceleration bias at start, m/s^2.',
-                                           0.0, 10.0)),
-    ('initial_speed_sigma_mps', 40.0, _desc('1-sigma speed at a cold start, m/s.', 0.0, 200.0)),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
     ('attitude_aiding_period_s', 0.2, _desc('Shortest interval between two attitude_aiding '
@@ -172,15 +131,6 @@ PARAMETERS = (
     ('max_sigma_m', 0.5, _desc('Error above this published chainage 1-sigma, m.', 0.0, 1e4)),
     ('report_hold_s', 5.0, _desc('A rejection stays in the diagnostics for this long, s.',
                                  0.0, 3600.0)),
-    ('standstill_window_s', 0.25, _desc('Standstill detector window, s.', 0.01, 10.0)),
-    ('standstill_gyro_std_max_rps', 0.005, _desc('Standstill: max angular-rate std, rad/s.',
-                                                 0.0, 10.0)),
-    ('standstill_accel_std_max_mps2', 0.05, _desc('Standstill: max specific-force std, m/s^2.',
-                                                  0.0, 100.0)),
-    ('zero_velocity_max_speed_mps', 0.3, _desc('Zero-velocity update only below this speed '
-                                               '(+2 sigma), m/s.', 0.0, 10.0)),
-    ('zero_velocity_sigma_mps', 0.01, _desc('1-sigma of a zero-velocity update, m/s.',
-                                            1e-6, 10.0)),
     ('history_s', 1.0, _desc('How far back a fix may be applied, s.', 0.05, 60.0)),
     ('imu_timeout_s', 0.2, _desc('Fixes stop waiting for an IMU lagging the frames by more '
                                  'than this, s.', 0.001, 60.0)),
@@ -197,10 +147,6 @@ PARAMETERS = (
     ('initial_chainage_sigma_m', 1.0, _desc('1-sigma of the prior chainage, m.', 1e-6, 1e6)),
     ('initial_speed_known', False, _desc('The prior includes the speed initial_speed_mps.')),
     ('initial_speed_mps', 0.0, _desc('Prior speed, m/s.', -200.0, 200.0)),
-    ('join_match_radius_px', 12.0, _desc('Max left-image distance lamp record - spot pair, px.',
-                                         0.0, 2000.0)),
-    ('join_timeout_s', 0.15, _desc('Longest wait for the other half of a frame, s.',
-                                   0.0, 10.0)),
     ('use_curvature_aid', True, _desc('Use curvature matches to re-acquire after a long lamp '
                                       'outage.')),
     ('curvature_aid_topic', 'companion/curvature/pose_with_covariance',
@@ -221,7 +167,8 @@ PARAMETERS = (
                                                  'the chainage; 0 = never.', 0, 1000)),
     ('curvature_aid_reset_min_travel_m', 200.0, _desc('Running distance such a run must span, '
                                                       'm.', 0.0, 1e5)),
-)
+) + (params.STEREO_PARAMETERS + params.TRACK_PARAMETERS + params.KALMAN_PARAMETERS
+     + params.STANDSTILL_PARAMETERS + params.JOIN_PARAMETERS)
 
 
 class TrainLocalizerNode(Node):
@@ -237,15 +184,14 @@ class TrainLocalizerNode(Node):
         path = resolve_lamp_map_path(p['lamp_map_path'], p['alignment'] or 'straight')
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
         self.curvature_aid = ChainageAid(self.localizer, self.reacquisition_config(p))
-        self.joiner = FrameJoiner(JoinConfig(match_radius_px=p['join_match_radius_px'],
-                                             timeout_s=p['join_timeout_s']))
+        self.joiner = FrameJoiner(params.join_config(p))
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._warnings = ThrottledWarnings(self.get_logger(), p['warn_throttle_s'],
                                            clock=self._now_s)
         self._fix_ms = deque(maxlen=500)
         self._latency_ms = deque(maxlen=500)
-        self._infos = [None, None]
-        self._intrinsics_source = 'parameters'
+        self._intrinsics = conversions.CameraInfoIntrinsics(self.localizer_config.geometry,
+                                                            p['use_camera_info'])
         self._published = 0
         self._last_pose = None
 
@@ -309,21 +255,15 @@ class TrainLocalizerNode(Node):
 
     @staticmethod
     def _config(p):
-        geometry = RigGeometry.from_mount(
-            (p['mount_x_m'], p['mount_y_m'], p['mount_z_m']), p['placement_angle_deg'],
-            p['pitch_deg'], fx=p['fx'], fy=p['fy'], cx=p['cx'], cy=p['cy'],
-            baseline_m=p['baseline_m'], row_time_s=p['row_time_s'], exposure_s=p['exposure_s'])
+        mount = params.load_mount(p)
+        geometry = params.rig_geometry(p, mount)
         fix = FixConfig(use_range_constraint=p['use_range_constraint'],
                         track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
                         track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
                         lamp_position_sigma_m=p['lamp_position_sigma_m'],
                         min_disparity_px=p['min_disparity_px'],
                         attitude_weight_inflation=p['attitude_weight_inflation'])
-        kalman = KalmanConfig(accel_noise_density_mps2_rthz=p['accel_noise_density_mps2_rthz'],
-                              bias_random_walk_mps3_rthz=p['bias_random_walk_mps3_rthz'],
-                              initial_bias_sigma_mps2=p['initial_bias_sigma_mps2'],
-                              initial_speed_sigma_mps=p['initial_speed_sigma_mps'],
-                              unknown_accel_sigma_mps2=p['unknown_accel_sigma_mps2'])
+        kalman = params.kalman_config(p, unknown_accel_sigma_mps2=p['unknown_accel_sigma_mps2'])
         integrity = IntegrityConfig(
             gate_chi2=p['gate_chi2'], geometry_gate_chi2=p['geometry_gate_chi2'],
             association_max_sigma_m=p['association_max_sigma_m'],
@@ -334,13 +274,8 @@ class TrainLocalizerNode(Node):
             contradiction_memory_s=p['contradiction_memory_s'],
             coast_warn_s=p['coast_warn_s'], max_sigma_m=p['max_sigma_m'],
             report_hold_s=p['report_hold_s'])
-        standstill = StandstillConfig(
-            enabled=p['use_zero_velocity'], window_s=p['standstill_window_s'],
-            gyro_std_max_rps=p['standstill_gyro_std_max_rps'],
-            accel_std_max_mps2=p['standstill_accel_std_max_mps2'],
-            max_speed_mps=p['zero_velocity_max_speed_mps'],
-            speed_sigma_mps=p['zero_velocity_sigma_mps'])
-        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg', 'imu_lever_arm_m'):
+        standstill = params.standstill_config(p)
+        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg'):
             if len(p[name]) != 3:
                 raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
         return LocalizerConfig(
@@ -352,7 +287,7 @@ class TrainLocalizerNode(Node):
             imu_max_gap_s=p['imu_max_gap_s'], backward_reset_s=p['backward_reset_s'],
             attitude_sigma_floor_rad=tuple(v * _DEG for v in p['attitude_sigma_floor_deg']),
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
-            imu_lever_arm_m=tuple(p['imu_lever_arm_m']),
+            imu_lever_arm_m=tuple(float(v) for v in mount.imu.position_m),
             tilt_leak_time_s=p['tilt_leak_time_s'],
             attitude_aiding_period_s=p['attitude_aiding_period_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
@@ -437,23 +372,13 @@ class TrainLocalizerNode(Node):
         self._process(self.joiner.flush(self._now_s()))
 
     def _on_camera_info(self, index, msg):
-        if not self.params['use_camera_info']:
-            return
-        self._infos[index] = msg
-        if self._infos[0] is None or self._infos[1] is None:
-            return
-        left, right = self._infos
-        try:
-            fx, fy, cx, cy, baseline = conversions.intrinsics_from_camera_info(left, right)
-        except ValueError as exc:
-            self._warn('camera_info', f'camera_info ignored: {exc}')
-            return
-        g = self.localizer.config.geometry
-        if (g.fx, g.fy, g.cx, g.cy, g.baseline_m) != (fx, fy, cx, cy, baseline):
-            g.fx, g.fy, g.cx, g.cy, g.baseline_m = fx, fy, cx, cy, baseline
-            self.get_logger().info(f'intrinsics from camera_info: fx {fx:.2f} fy {fy:.2f} '
-                                   f'cx {cx:.2f} cy {cy:.2f} px, baseline {baseline:.4f} m')
-        self._intrinsics_source = 'camera_info'
+        said = self._intrinsics.update(index, msg)
+        if said is not None:
+            level, text = said
+            if level == 'warn':
+                self._warn('camera_info', text)
+            else:
+                self.get_logger().info(text)
 
     def _process(self, frames):
         for stamp_ns, observations in frames:
@@ -531,7 +456,7 @@ class TrainLocalizerNode(Node):
             'frames_joined': j.joined,
             'frames_without_uids': j.spots_without_lamps,
             'lamp_records_unmatched': j.unmatched_lamp_records,
-            'intrinsics': self._intrinsics_source,
+            'intrinsics': self._intrinsics.source,
         }
         aid = self.curvature_aid.counters
         values.update({'curvature_aids_received': aid.received,
@@ -567,23 +492,7 @@ class TrainLocalizerNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = TrainLocalizerNode()
-        freeze_start_up_objects()
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, OSError) as exc:
-        # Bad parameters or an unreadable lamp map: say so and exit non-zero.
-        rclpy.logging.get_logger('train_localizer').fatal(f'cannot start: {exc}')
-        return 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(TrainLocalizerNode, 'train_localizer', args)
 
 
 if __name__ == '__main__':

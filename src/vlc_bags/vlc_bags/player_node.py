@@ -27,7 +27,7 @@ import time
 
 from builtin_interfaces.msg import Time
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -48,7 +48,7 @@ from vlc_bags.playback import (
     select_topics,
     time_window,
 )
-from vlc_common.process import keep_large_buffers
+from vlc_common.process import keep_large_buffers, run_node
 
 
 class BagPlayerNode(Node):
@@ -189,29 +189,20 @@ class BagPlayerNode(Node):
         self._thread.join(timeout=5.0)
 
 
-def main(args=None) -> None:
+def _play(node):
+    """Spin until the bag is done (and ``exit_when_done``) or the node is stopped."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    while rclpy.ok() and not (node.done.is_set() and node.config.exit_when_done):
+        executor.spin_once(timeout_sec=0.1)
+    return 1 if node.failure is not None else 0
+
+
+def main(args=None) -> int:
     keep_large_buffers()
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = BagPlayerNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not (node.done.is_set() and node.config.exit_when_done):
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, FileNotFoundError, ReaderError) as exc:
-        rclpy.logging.get_logger('bag_player').fatal(str(exc))
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.stop()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if node is not None and node.failure is not None:
-        sys.exit(1)
+    return run_node(BagPlayerNode, 'bag_player', args, spin=_play, stop=BagPlayerNode.stop,
+                    startup_errors=(ReaderError,))
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

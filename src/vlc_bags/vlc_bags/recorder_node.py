@@ -34,7 +34,6 @@ import time
 
 import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 import rclpy.logging
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -49,7 +48,7 @@ from vlc_bags.recording import (
     subscription_qos,
 )
 from vlc_common.polled import PolledSubscription
-from vlc_common.process import keep_large_buffers, spin_until_shutdown
+from vlc_common.process import keep_large_buffers, run_node
 
 
 class BagRecorderNode(Node):
@@ -208,25 +207,10 @@ class BagRecorderNode(Node):
                                f'messages in {len(meta["files"])} files')
 
 
-def main(args=None) -> None:
+def main(args=None) -> int:
     keep_large_buffers()
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = BagRecorderNode()
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ValueError, FileExistsError) as exc:
-        # bad parameters or an existing output folder: say so and fail without a traceback
-        rclpy.logging.get_logger('bag_recorder').fatal(str(exc))
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(BagRecorderNode, 'bag_recorder', args, stop=BagRecorderNode.close)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

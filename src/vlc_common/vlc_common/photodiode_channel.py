@@ -2,25 +2,15 @@
 (the rig draws samples with them, the RSSI localizer inverts the channel with them),
 declared from one table so both read one parameter file's values.
 """
-from rcl_interfaces.msg import ParameterType
-
 from vlc_common.core.optical_channel import PhotodiodeConfig
 from vlc_common.parameters import descriptor as _desc
 
-_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _PD = PhotodiodeConfig()
 
 #: Channel parameters: what a receiver must know to invert the channel. The RSSI
 #: localizer declares the same table (companion_localizers), so both sides read one
 #: parameter file's values. (name, default, descriptor); see config/photodiode_node.yaml.
 CHANNEL_PARAMETERS = (
-    ('pd_mount_xyz_m', list(_PD.mount_xyz_m), _desc('Photodiode position in base_link '
-                                                    '[x, y, z], m.', ptype=_ARRAY)),
-    ('pd_azimuth_deg', _PD.azimuth_deg, _desc('PD normal turned from base_link +y (toward '
-                                              'the left wall) to +x (forward), deg.',
-                                              -180.0, 180.0)),
-    ('pd_elevation_deg', _PD.elevation_deg, _desc('PD normal above the horizontal, deg.',
-                                                  -90.0, 90.0)),
     ('pd_fov_half_angle_deg', _PD.fov_half_angle_deg, _desc('Receiver field of view '
                                                             '(half angle), deg.', 1.0, 89.0)),
     ('pd_area_m2', _PD.area_m2, _desc('Detector area, m^2.', 1e-8, 1e-2)),
@@ -49,17 +39,14 @@ def declare_channel_parameters(node):
     return {name: node.get_parameter(name).value for name, _, _ in CHANNEL_PARAMETERS}
 
 
-def photodiode_config(channel, **noise):
-    """PhotodiodeConfig from channel parameter values (and optional noise keywords).
-
-    Raises ValueError for an invalid combination (e.g. a mount that is not 3 numbers).
+def photodiode_config(channel, mount, **noise):
+    """PhotodiodeConfig from channel parameter values, the photodiode's mount (a
+    :class:`~vlc_common.core.vehicle.PhotodiodeMount` of the vehicle file) and optional
+    noise keywords (ValueError for an invalid combination).
     """
-    mount = [float(v) for v in channel['pd_mount_xyz_m']]
-    if len(mount) != 3:
-        raise ValueError(f'pd_mount_xyz_m must be [x, y, z] in metres, got {mount}')
     return PhotodiodeConfig(
-        mount_xyz_m=tuple(mount), azimuth_deg=channel['pd_azimuth_deg'],
-        elevation_deg=channel['pd_elevation_deg'],
+        mount_xyz_m=tuple(float(v) for v in mount.position_m), azimuth_deg=mount.azimuth_deg,
+        elevation_deg=mount.elevation_deg,
         fov_half_angle_deg=channel['pd_fov_half_angle_deg'], area_m2=channel['pd_area_m2'],
         filter_transmission=channel['pd_filter_transmission'],
         refractive_index=channel['pd_refractive_index'],
@@ -67,5 +54,3 @@ def photodiode_config(channel, **noise):
         lamp_optical_power_w=channel['lamp_optical_power_w'],
         lamp_half_power_angle_deg=channel['lamp_half_power_angle_deg'],
         lamp_power_sigma_rel=channel['lamp_power_sigma_rel'], **noise)
-
-

@@ -2,13 +2,13 @@
 
 rclpy's executor pays a fixed cost per message — rebuilding the wait set over every
 subscription, timer, service and event handler of the node, waking up, creating a task,
-taking the message — that dwarfs the work of a small message: py-spy of the localizer in
-a real-time replay put 60 % of its samples in the executor, most of them for the 400 Hz
-``imu/data``. A :class:`PolledSubscription` is a normal subscription in the ROS graph
-(same topic resolution, remapping, QoS, visible to ``ros2 topic info``), but in a callback
-group the executor never waits on; the node calls :meth:`PolledSubscription.take_all`
-from a timer and wherever it needs everything received so far (before a fix), so a batch
-of messages costs one wake-up.
+taking the message — that dwarfs the work of a small message: in a profile of the
+localizer most of its time went to the executor, for the 400 Hz ``imu/data``. A
+:class:`PolledSubscription` is a normal subscription in the ROS graph (same topic
+resolution, remapping, QoS, visible to ``ros2 topic info``), but in a callback group the
+executor never waits on; the node calls :meth:`PolledSubscription.take_all` from a timer
+and wherever it needs everything received so far (before a fix), so a batch of messages
+costs one wake-up.
 
 The messages are taken with the subscription handle's ``take_message``, the call rclpy's
 own executor and ``rclpy.wait_for_message`` make.

@@ -1,7 +1,8 @@
-"""Process-level start-up shared by every node of the graph."""
+"""Process conventions shared by every node of the graph: start-up, ``main()``, clean stop."""
 import ctypes
 import gc
 import os
+import signal
 
 # glibc mallopt() parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -18,12 +19,10 @@ def keep_large_buffers():
     Every received or published image passes through several buffers of its size (the
     middleware's sample, the deserialised C message, the Python ``array``). glibc serves
     a request above its mmap threshold with a fresh ``mmap`` and unmaps it on free, so
-    each buffer costs a page fault per 4 KiB page on first touch: 710 minor faults and
-    2.6 ms CPU per 0.9 MB mono8 image taken by a subscriber, measured with two processes
-    at 30 Hz on the project's Fast DDS profile; with the thresholds below the buffers come
-    from (and return to) the heap: 68 faults, 1.2 ms. A node taking both images of every
-    frame saves about 2.8 ms per frame, on the critical path to the pose. The process's
-    heap keeps up to ``LARGE_BUFFER_TRIM_THRESHOLD`` of freed memory. Returns True when
+    each buffer costs a page fault per 4 KiB page on first touch; with the thresholds
+    below the buffers come from (and return to) the heap, on the critical path to the
+    pose (measured: docs/ARCHITECTURE.md, process conventions). The process's heap keeps
+    up to ``LARGE_BUFFER_TRIM_THRESHOLD`` of freed memory. Returns True when
     the allocator took both settings (False off glibc, or with the environment variable
     ``VLC_KEEP_LARGE_BUFFERS=0``, which keeps glibc's defaults).
     """
@@ -47,10 +46,9 @@ def freeze_start_up_objects():
     Called by each processing node once it is built, before it spins. After the imports
     (rclpy, numpy, scipy, OpenCV, scikit-image), the lamp map and any warm-up the process
     holds ~90k GC-tracked objects that live until exit, and every full (generation-2)
-    collection traverses them all: 45–55 ms on this machine, landing on whichever frame
-    or IMU sample happens to allocate at that moment (measured in spot_locator,
-    docs/arch/spot_locator.md "Per-frame tail"). Frozen, a full collection only sees what
-    was allocated since (well under a millisecond). Per-frame garbage is still collected
+    collection traverses them all, landing on whichever frame or IMU sample happens to
+    allocate at that moment (docs/arch/spot_locator.md "Per-frame tail"). Frozen, a full
+    collection only sees what was allocated since. Per-frame garbage is still collected
     as before.
     """
     gc.collect()
@@ -79,3 +77,106 @@ def spin_until_shutdown(spin, context=None):
     except RuntimeError:
         if rclpy.ok(context=context):
             raise
+
+
+#: Exit code of a node that cannot start: invalid parameters, an unreadable file.
+EXIT_INVALID_CONFIG = 2
+
+
+class _StopSignals:
+    """SIGINT / SIGTERM handler under rclpy's own.
+
+    rclpy's handler (installed by ``rclpy.init`` on top of this one) shuts the context
+    down, which ends the spin in order (ExternalShutdownException); then it calls this
+    handler. While the node spins this only counts: a KeyboardInterrupt raised at an
+    arbitrary point of the executor's Python can leave a half-built task behind and turn
+    a stop into a crash. Before the node spins (while it is built) the first signal
+    raises KeyboardInterrupt, there is nothing to tear down in order yet. ``ros2 launch``
+    forwards Ctrl-C to every node after the terminal already sent it to the whole process
+    group, so the second signal of a stop arrives during the clean-up: it is ignored.
+    """
+
+    def __init__(self):
+        self.spinning = False
+        self.received = 0
+
+    def __call__(self, signum, frame):
+        self.received += 1
+        if self.received == 1 and not self.spinning:
+            raise KeyboardInterrupt
+
+
+def _spin(node):
+    import rclpy
+    spin_until_shutdown(lambda: rclpy.spin(node))
+
+
+def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_errors=()):
+    """The ``main()`` of a node: init, build, spin, stop cleanly; returns the exit code.
+
+    Parameters
+    ----------
+    make_node : callable
+        Builds the node (after ``rclpy.init``).
+    name : str
+        Logger name of the fatal message when the node cannot start.
+    args : list of str, optional
+        Command-line arguments for ``rclpy.init``.
+    spin : callable(node) -> int or None
+        Runs the node until it is done or stopped; its return value is the exit code
+        (default: ``rclpy.spin`` until SIGINT, SIGTERM or an external shutdown).
+    stop : callable(node), optional
+        Called before ``destroy_node`` (flush files, stop threads).
+    startup_errors : tuple of exception types
+        Raised while building the node: a fatal log line and exit code
+        :data:`EXIT_INVALID_CONFIG` (besides ParameterException, ValueError, OSError).
+
+    One or two SIGINTs (a terminal's Ctrl-C, ``ros2 launch``) or a SIGTERM end the node
+    with exit code 0 and no traceback; the node and its DDS participant are destroyed,
+    so no shared-memory segment is left behind.
+    """
+    import rclpy
+    from rclpy.exceptions import ParameterException
+    from rclpy.executors import ExternalShutdownException
+
+    stopper = _StopSignals()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, stopper)
+    rclpy.init(args=args)
+    node, code = None, 0
+    try:
+        node = make_node()
+        freeze_start_up_objects()
+        stopper.spinning = True
+        if stopper.received:
+            return 0
+        code = spin(node) or 0
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ParameterException, ValueError, OSError, *startup_errors) as exc:
+        if node is not None:
+            raise
+        rclpy.logging.get_logger(name).fatal(f'invalid configuration, not starting: {exc}')
+        code = EXIT_INVALID_CONFIG
+    finally:
+        stopper.spinning = True
+        if node is not None:
+            if stop is not None:
+                stop(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+        # Python's finalisation resets a signal with a Python handler to the default
+        # action: a second SIGINT arriving then would kill the process (exit -2). An
+        # ignored signal is left ignored.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_IGN)
+    return code
+
+
+def spin_until_finished(node):
+    """Spin a node that ends by itself (a rig node with a duration) until its ``finished``
+    future is done or it is stopped; returns the future's exit code (0 when stopped).
+    """
+    import rclpy
+    spin_until_shutdown(lambda: rclpy.spin_until_future_complete(node, node.finished))
+    return node.finished.result() if node.finished.done() else 0

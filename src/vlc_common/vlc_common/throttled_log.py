@@ -2,12 +2,11 @@
 
 rclpy's ``throttle_duration_sec`` is checked in rcutils *after* the Python logger has
 located its caller with ``inspect.getframeinfo`` (and after the caller has formatted the
-message): about half a millisecond per suppressed warning here, paid on every call. A
-400 Hz node warning about every IMU gap while the machine is short of CPU spent 12 %
-of its samples there (py-spy, imu_compensator_node on a replay), which made it fall
-further behind. :class:`ThrottledWarnings` decides in Python first, formats only what is
-logged, throttles each kind on its own (rclpy's throttle is per call site, so one kind
-cannot hide another here) and says how many were suppressed.
+message), paid on every call: a 400 Hz node warning about every IMU gap while the
+machine is short of CPU spent a sizeable share of its time there and fell further
+behind. :class:`ThrottledWarnings` decides in Python first, formats only what is logged,
+throttles each kind on its own (rclpy's throttle is per call site, so one kind cannot
+hide another here) and says how many were suppressed.
 """
 import time
 

@@ -139,7 +139,7 @@ def test_installed_decoder_warns_on_bad_input_and_keeps_running(launch, ros_env)
         while time.monotonic() < end and any(p.get_subscription_count() == 0 for p in pubs):
             spin(0.1)
         bad = img(left, stamp0)
-        bad.encoding = 'yuv422'
+        bad.encoding = 'bayer_rggb8'
         short = img(left, stamp0 + 1000)
         short.data = short.data[:100]
         empty = img(left[:0], stamp0 + 1500)
@@ -164,6 +164,6 @@ def test_installed_decoder_warns_on_bad_input_and_keeps_running(launch, ros_env)
     assert launch.stop(decoder) == 0
     log = launch.output(decoder)
     assert got['vlc/lamps'], log
-    for text in ('unsupported encoding', 'truncated image', 'empty image', 'differ in size',
+    for text in ('unsupported image encoding', 'truncated image', 'empty image', 'differ in size',
                  'no stereo partner'):
         assert text in log, (text, log)

@@ -15,57 +15,15 @@ from vlc_common.core.records import (  # noqa: F401
     FLAG_RIGHT_CUT,
     LAMP_DTYPE,
 )
+from vlc_common.images import ImageError, image_to_array  # noqa: F401 (ImageError re-exported)
 from vlc_common.pointcloud import records_to_cloud  # noqa: F401 (re-exported)
-
-# encoding → (channels, bytes per channel, OpenCV conversion to gray or None)
-_ENCODINGS = {
-    'mono8': (1, 1, None), '8UC1': (1, 1, None),
-    'mono16': (1, 2, None), '16UC1': (1, 2, None),
-    'rgb8': (3, 1, 'rgb'), 'bgr8': (3, 1, 'bgr'),
-    'rgba8': (4, 1, 'rgba'), 'bgra8': (4, 1, 'bgra'),
-}
-
-
-class ImageError(ValueError):
-    """An image message the decoder cannot use: ``kind`` names the problem, the text
-    says why.
-    """
-
-    def __init__(self, kind, text):
-        super().__init__(text)
-        self.kind = kind
 
 
 def image_to_mono8(msg):
-    """sensor_msgs/Image → (H, W) uint8 gray array (a view when already mono8).
-
-    Colour images are converted with the ITU-R BT.601 luma weights; 16-bit images keep
-    their 8 most significant bits. Raises ImageError for an unknown encoding, an empty,
-    truncated or inconsistent image.
+    """sensor_msgs/Image → (H, W) uint8 grey (:func:`vlc_common.images.image_to_array`,
+    16-bit images reduced to their 8 most significant bits); raises ImageError.
     """
-    if msg.encoding not in _ENCODINGS:
-        raise ImageError('encoding', f'unsupported encoding {msg.encoding!r}')
-    channels, depth, colour = _ENCODINGS[msg.encoding]
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if height == 0 or width == 0:
-        raise ImageError('empty', f'empty image ({width}x{height})')
-    if step < width * channels * depth:
-        raise ImageError('step', f'step {step} < {width} px x {channels * depth} bytes')
-    data = np.frombuffer(msg.data, dtype=np.uint8)
-    if data.size < step * height:
-        raise ImageError('truncated',
-                         f'truncated image: {data.size} bytes < step {step} x {height} rows')
-    rows = data[:step * height].reshape(height, step)[:, :width * channels * depth]
-    if depth == 2:
-        order = '>u2' if msg.is_bigendian else '<u2'
-        return (rows.view(order).reshape(height, width) >> 8).astype(np.uint8)
-    if colour is None:
-        return rows
-    pixels = rows.reshape(height, width, channels).astype(np.float32)
-    r_index = 0 if colour.startswith('rgb') else 2
-    gray = (0.299 * pixels[..., r_index] + 0.587 * pixels[..., 1]
-            + 0.114 * pixels[..., 2 - r_index])
-    return np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+    return image_to_array(msg, mono8=True)
 
 
 def _spot_fields(spot):

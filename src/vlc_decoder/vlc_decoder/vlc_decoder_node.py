@@ -23,8 +23,8 @@ Bad input (unknown encoding, empty or truncated image, left/right size mismatch,
 unpaired or out-of-order stamps) gives a throttled warning and the frame is skipped. A
 stamp more than ``stamp_jump_reset_s`` before the last decoded frame (a looped bag)
 resets the lamp tracks with a throttled warning and decoding starts afresh.
-Frames are decoded on the executor thread: a stereo pair takes a few milliseconds
-(``decoder_benchmark``), well inside the 33 ms frame period. OpenCV runs single-threaded.
+Frames are decoded on the executor thread, well inside a frame period
+(``decoder_benchmark`` measures it). OpenCV runs single-threaded.
 """
 import collections
 import sys
@@ -34,14 +34,16 @@ import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
-from vlc_common.process import freeze_start_up_objects, keep_large_buffers, spin_until_shutdown
+from vlc_common.process import (
+    keep_large_buffers,
+    run_node,
+)
+from vlc_common.stamps import stamp_to_ns
 from vlc_common.throttled_log import ThrottledWarnings
 from vlc_decoder import conversions
 from vlc_decoder.core import synth
@@ -128,11 +130,11 @@ def warm_up(cfg, lamp_map):
     """Run the tracker's per-frame code paths on synthetic striped stereo frames.
 
     The first calls of OpenCV's contour and morphology kernels and of numpy's ufunc loops
-    for each dtype, the first header search, assembly and CRC, cost tens of milliseconds:
-    without this they fell on the first real frames (decoder latency 50-100 ms on the first
-    five frames of a real-time replay). A throwaway tracker decodes three frames of a near
-    lamp (160 px, confirmed from the second frame on; a UID of the map, so the lookup runs
-    too) and a far one (24 px, partial); the node's own tracker starts empty. Returns the
+    for each dtype, the first header search, assembly and CRC, are slow: without this
+    they fell on the first real frames and delayed them. A throwaway tracker decodes
+    three frames of a near lamp (160 px, confirmed from the second frame on; a UID of the
+    map, so the lookup runs too) and a far one (24 px, partial); the node's own tracker
+    starts empty. Returns the
     number of confirmed records in the last frame.
     """
     tracker = LampTracker(cfg, lamp_map)
@@ -221,7 +223,7 @@ class VlcDecoderNode(Node):
         self.infos[side] = msg
 
     def _on_image(self, side, msg):
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = stamp_to_ns(msg.header.stamp)
         if self.tracker.stamp_jumped_back(stamp_ns):
             # a looped bag or a restarted camera: start afresh rather than skip every
             # frame until the stamps catch up, and never mix fragments across the jump
@@ -324,25 +326,8 @@ class VlcDecoderNode(Node):
 def main(args=None):
     cv2.setNumThreads(1)
     keep_large_buffers()
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = VlcDecoderNode()
-        freeze_start_up_objects()
-        spin_until_shutdown(lambda: rclpy.spin(node))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except StartupError as error:
-        rclpy.logging.get_logger('vlc_decoder_node').fatal(str(error))
-        code = 2
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    if code:
-        sys.exit(code)
+    return run_node(VlcDecoderNode, 'vlc_decoder_node', args, startup_errors=(StartupError,))
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -161,8 +161,11 @@ def test_update_markdown_replaces_only_the_marked_section(tmp_path):
     report.update_markdown(readme, tmp_path / 'out', 'run_evaluation --protocol demo')
     first = readme.read_text()
     assert first.startswith('# Title\n\nintro') and report.BEGIN_MARK in first
-    assert '](docs/evaluation/static_error_vs_distance.png)' in first
-    assert '](docs/evaluation/heading_compensation.png)' in first
+    assert '| static, 0.5–10 m before a lamp' in first and '](docs/RESULTS.md)' in first
+    results = (tmp_path / 'docs' / 'RESULTS.md').read_text()
+    assert results.startswith('# Results') and results.count(report.BEGIN_MARK) == 1
+    assert '](evaluation/static_error_vs_distance.png)' in results
+    assert '](evaluation/heading_compensation.png)' in results
     assert (tmp_path / 'docs/evaluation/static_error_vs_distance.png').exists()
     assert (tmp_path / 'docs/evaluation/heading_compensation.png').exists()
     readme.write_text(first + '\nafter\n')
@@ -170,3 +173,5 @@ def test_update_markdown_replaces_only_the_marked_section(tmp_path):
     second = readme.read_text()
     assert second.count(report.BEGIN_MARK) == 1 and second.endswith('after\n')
     assert '--protocol full' in second and '--protocol demo' not in second
+    results = (tmp_path / 'docs' / 'RESULTS.md').read_text()
+    assert results.count(report.BEGIN_MARK) == 1 and '--protocol full' in results

@@ -16,6 +16,7 @@ import numpy as np
 from vlc_bags.bagio import open_bag
 from vlc_common.core.rotations import matrix_to_rpy, quat_to_matrix
 from vlc_common.pointcloud import cloud_to_records
+from vlc_common.stamps import stamp_to_ns, stamp_to_s
 from vlc_evaluation import metrics
 
 GROUND_TRUTH = '/ground_truth/pose'
@@ -27,10 +28,6 @@ PAIRS = '/spots/pairs'
 TRUTH_SPOTS = '/ground_truth/spots'
 DIAGNOSTICS = '/diagnostics'
 CLOUD_TOPICS = {LAMPS: 'lamps', PAIRS: 'pairs', TRUTH_SPOTS: 'truth_spots'}
-
-
-def _stamp(header):
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 def _xyz(p):
@@ -65,10 +62,6 @@ class RunData:
     bag_path: pathlib.Path = None
 
 
-def _stamp_ns(header):
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
 def load_run(bag_path):
     """Read the evaluation topics of a bag into a :class:`RunData`."""
     cols = {k: [] for k in ('tt', 'tx', 'tq', 'pt', 'px', 'ct', 'cx', 'cc', 'it', 'iq',
@@ -79,7 +72,7 @@ def load_run(bag_path):
     for topic, _, _, msg in open_bag(bag_path, topics=topics):
         if topic in CLOUD_TOPICS:
             try:
-                clouds[CLOUD_TOPICS[topic]][_stamp_ns(msg.header)] = cloud_to_records(msg)
+                clouds[CLOUD_TOPICS[topic]][stamp_to_ns(msg.header.stamp)] = cloud_to_records(msg)
             except ValueError:
                 continue
         elif topic == DIAGNOSTICS:
@@ -87,18 +80,18 @@ def load_run(bag_path):
                 diagnostics.setdefault(status.name, []).append(
                     {kv.key: kv.value for kv in status.values})
         elif topic == GROUND_TRUTH:
-            cols['tt'].append(_stamp(msg.header))
+            cols['tt'].append(stamp_to_s(msg.header.stamp))
             cols['tx'].append(_xyz(msg.pose.position))
             cols['tq'].append(_quat(msg.pose.orientation))
         elif topic == POSE:
-            cols['pt'].append(_stamp(msg.header))
+            cols['pt'].append(stamp_to_s(msg.header.stamp))
             cols['px'].append(_xyz(msg.pose.position))
         elif topic == POSE_COV:
-            cols['ct'].append(_stamp(msg.header))
+            cols['ct'].append(stamp_to_s(msg.header.stamp))
             cols['cx'].append(_xyz(msg.pose.pose.position))
             cols['cc'].append(np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[:3, :3])
         elif topic == IMU:
-            cols['it'].append(_stamp(msg.header))
+            cols['it'].append(stamp_to_s(msg.header.stamp))
             cols['iq'].append(_quat(msg.orientation))
             cols['ic'].append(np.asarray(msg.orientation_covariance, dtype=float).reshape(3, 3))
 

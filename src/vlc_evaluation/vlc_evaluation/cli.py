@@ -6,9 +6,9 @@ Examples::
     run_evaluation --protocol full --out out/eval  # 20 points x 10 trials, 6 speeds x 10 runs
     run_evaluation --protocol dynamic --speeds 100 120 --runs 2
     run_evaluation --protocol full --lanes 2 --rescore --out out/eval   # score again
-    run_evaluation --protocol companions --lanes 1 --out out/companions   # issue 7
+    run_evaluation --protocol companions --lanes 1 --out out/companions   # other methods
     run_evaluation --protocol none --forged --out out/forged
-    run_evaluation --protocol none --latency --out out/latency       # issue 5's latency
+    run_evaluation --protocol none --latency --out out/latency       # replay latency
 """
 import argparse
 import json

@@ -22,6 +22,7 @@ import sys
 import numpy as np
 
 from vlc_bags.bagio import open_bag
+from vlc_common.stamps import stamp_to_s
 from vlc_evaluation import metrics
 
 GROUND_TRUTH = '/ground_truth/pose'
@@ -34,10 +35,6 @@ METHODS = {
 }
 PROCESSING_KEYS = ('processing_ms_median', 'processing_ms_p95', 'processing_ms_max',
                    'cpu_ms_per_pose')
-
-
-def _stamp(header):
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 def load_bag(bag_path, methods=tuple(METHODS)):
@@ -65,7 +62,7 @@ def load_bag(bag_path, methods=tuple(METHODS)):
         else:
             store = cols[topics[topic]]
         p = msg.pose.position
-        store[0].append(_stamp(msg.header))
+        store[0].append(stamp_to_s(msg.header.stamp))
         store[1].append([p.x, p.y, p.z])
 
     def arrays(t, xyz):

@@ -16,8 +16,8 @@ Three scenario kinds of the runner (``Scenario.kind``), each scored from its bag
   the localizer keep the full map. Scored: the main localizer's error and published 3σ
   before, inside and after the outage, the integrity states its diagnostics report
   there, and where it re-acquires (its chainage σ back to the tracking level). A second
-  run on ``curved_demo`` (:func:`curved_outage_scenario`, issue 7's re-acquisition by the
-  curvature match): every lamp dark over ``CURVED_DARK_M`` from ``CURVED_DARK_FROM_M``
+  run on ``curved_demo`` (:func:`curved_outage_scenario`, re-acquisition by the curvature
+  match): every lamp dark over ``CURVED_DARK_M`` from ``CURVED_DARK_FROM_M``
   (no half-dark stretch), ``curvature_node`` beside the graph; scored alike (chainage =
   the truth projected on the alignment, σ along the track tangent) plus the localizer's
   curvature-aid counters, the error at the end of the dark stretch and the curvature
@@ -41,6 +41,7 @@ from vlc_bags.bagio import open_bag
 from vlc_common.core.alignment import Alignment
 from vlc_common.core.lamp_map import Lamp, LampMap, default_lamp_map_path
 from vlc_common.core.protocol import uid_of
+from vlc_common.stamps import stamp_to_s
 from vlc_evaluation import bag_eval, metrics
 from vlc_evaluation.scenarios import (
     DYNAMIC_START_M,
@@ -298,7 +299,7 @@ def _load_poses(bag, topics):
     cols = {t: ([], []) for t in topics}
     for topic, _, _, msg in open_bag(bag, topics=list(topics)):
         p = msg.pose.position
-        cols[topic][0].append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
+        cols[topic][0].append(stamp_to_s(msg.header.stamp))
         cols[topic][1].append([p.x, p.y, p.z])
     out = {}
     for topic, (t, xyz) in cols.items():
@@ -751,7 +752,7 @@ def report_sections(companions=(), outage=(), forged=()):
     parts, figures = [], {}
     if companions:
         table, figures['companions'] = companion_table(companions)
-        parts += ['', '### Every positioning method on the same scenarios (issue 7)', '',
+        parts += ['', '### Every positioning method on the same scenarios', '',
                   'Every pose after the settle time (static 1 s; straight dynamic runs the '
                   "protocol's lead-in, two lamp cells and at least 3 s; curved the later of "
                   '1 s and two lamp cells) against the truth at its stamp; availability = '

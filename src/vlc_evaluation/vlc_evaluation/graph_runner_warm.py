@@ -4,11 +4,10 @@ that every forked node would otherwise repeat, done once before the fork.
 * :mod:`inspect`'s module-by-file index. rclpy's logger finds its caller with
   ``inspect.getframeinfo``, whose first call in a process maps every loaded module to
   its file (a ``realpath`` per module). In a child of the fork server that is every
-  module of every node (numpy, SciPy, OpenCV, scikit-image, rclpy, …): about 0.09 s of
-  CPU at each node's first log line, measured on this machine, in each of the eight
-  processes of every scenario.
+  module of every node (numpy, SciPy, OpenCV, scikit-image, rclpy, …), paid at each
+  node's first log line in each process of every scenario.
 * The C type support of the graph's message types (rclpy imports and checks it at a
-  type's first publisher or subscription: 0.075 CPU-s for these nine). Loading it opens
+  type's first publisher or subscription). Loading it opens
   the message packages' shared libraries; no rclpy context, participant or DDS thread
   is created, so forking stays safe.
 """

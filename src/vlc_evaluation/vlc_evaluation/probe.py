@@ -28,6 +28,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 
+from vlc_common.stamps import stamp_to_ns
+
 IMAGE_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw')
 LOG = logging.getLogger(__name__)
 
@@ -85,7 +87,7 @@ class GraphProbe:
 
     # ------------------------------------------------------------- callbacks
     def _on_pose(self, msg):
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp = stamp_to_ns(msg.header.stamp)
         with self._lock:
             self._pose_count += 1
             self._pose_wall = time.monotonic()

@@ -33,6 +33,7 @@ import yaml
 
 from vlc_bags.bagio import iter_raw, open_bag
 from vlc_bags.typesupport import header_stamp_ns
+from vlc_common.stamps import stamp_to_ns
 from vlc_evaluation.graph_runner import ForkSpawner, GraphRun, read_cpu_seconds, workspace_install
 from vlc_evaluation.latency import READOUT_S
 
@@ -48,7 +49,7 @@ RECORDER = ('vlc_bags', 'bag_recorder')
 PLAYER = ('vlc_bags', 'bag_player')
 EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYER]]
 # Extra processing nodes a scenario may add (Scenario.extra_nodes: the companion methods
-# of issue 7 and the rig's photodiode), preloaded in the fork server too.
+# and the rig's photodiode), preloaded in the fork server too.
 EXTRA_EXECUTABLES = ['photodiode_node', 'rssi_localizer_node', 'dead_reckoning_node',
                      'ins_beacon_node', 'curvature_node']
 # What a replay plays from a sensor bag (the processing nodes' inputs and the truth)
@@ -119,10 +120,9 @@ class Lane:
     epoch_s: float = field(default_factory=rig_epoch_s)
     abort: threading.Event = field(default_factory=threading.Event)
     pace: float = 1.0
-    # Floor of the pace. Session 3's machine settled at 0.3-1.0 with two lanes; on
-    # session 4's, where the same code ran 1.65x slower, 239 of 262 runs kept at a floor
-    # of 0.3 still had a node falling behind (IMU gaps, lamp records past the
-    # localizer's history): a slower clean run is worth more than a fast degraded one.
+    # Floor of the pace: on a slow machine a floor of 0.3 still left most runs with a
+    # node falling behind (IMU gaps, lamp records past the localizer's history); a
+    # slower clean run is worth more than a fast degraded one.
     min_pace: float = 0.15
     ceiling: float = 1.0
 
@@ -165,8 +165,7 @@ def bag_end_ns(bag, topic='/ground_truth/pose'):
     """Header stamp of the last ``topic`` message of a bag, ns (0 if none)."""
     last = 0
     for _, _, _, msg in open_bag(bag, topics=[topic]):
-        last = max(last, int(msg.header.stamp.sec) * 1_000_000_000
-                   + int(msg.header.stamp.nanosec))
+        last = max(last, stamp_to_ns(msg.header.stamp))
     return last
 
 

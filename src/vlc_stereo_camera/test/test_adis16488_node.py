@@ -15,6 +15,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 import yaml
 
+from vlc_common.core.rotations import rpy_to_matrix
+from vlc_common.core.vehicle import ImuMount, VehicleMount
+from vlc_common.stamps import epoch_to_ns, sample_stamp_ns
 from vlc_stereo_camera import adis16488_node
 from vlc_stereo_camera.adis16488_node import NODE_PARAMETERS, Adis16488Node
 from vlc_stereo_camera.core.imu_model import (
@@ -23,7 +26,7 @@ from vlc_stereo_camera.core.imu_model import (
     ImuSampler,
     true_imu_signals,
 )
-from vlc_stereo_camera.imu_conversions import epoch_to_ns, imu_arrays, imu_message, sample_stamp_ns
+from vlc_stereo_camera.imu_conversions import imu_arrays, imu_message
 from vlc_stereo_camera.rig_params import SCENARIO_PARAMETERS, ScenarioConfig
 
 EPOCH_NS = 1704067200 * 10 ** 9
@@ -121,10 +124,19 @@ def test_same_seed_same_messages_different_seed_different(make_node):
     assert values[0] != values[2]
 
 
-def test_truth_mode_with_lever_arm(make_node):
+def _vehicle_file(tmp_path, **imu):
+    mount = VehicleMount()
+    mount.imu = ImuMount(**imu)
+    path = tmp_path / 'vehicle.yaml'
+    mount.save(path)
+    return str(path)
+
+
+def test_truth_mode_with_lever_arm_of_the_vehicle_file(make_node, tmp_path):
     lever = [2.0, -0.5, 1.0]
     node = make_node(rate_hz=100.0, realtime_factor=0.0, noise_enabled=False,
-                     lever_arm_m=lever, imu_frame_id='imu_front', speed_kmh=80.0)
+                     vehicle_path=_vehicle_file(tmp_path, position_m=lever),
+                     imu_frame_id='imu_front', speed_kmh=80.0)
     sent = _run(node, 5)
     t = np.arange(len(sent)) / 100.0
     omega, f = true_imu_signals(_scenario(speed_kmh=80.0).trajectory(), t, lever)
@@ -132,6 +144,19 @@ def test_truth_mode_with_lever_arm(make_node):
     np.testing.assert_allclose([imu_arrays(m)[2] for m in sent], f, rtol=1e-12, atol=1e-12)
     assert sent[0].header.frame_id == 'imu_front'
     assert sent[0].angular_velocity_covariance[0] == 0.0
+
+
+def test_boresight_of_the_vehicle_file_rotates_both_signals(make_node, tmp_path):
+    rpy = np.radians([1.0, -2.0, 3.0])
+    node = make_node(rate_hz=100.0, realtime_factor=0.0, noise_enabled=False,
+                     vehicle_path=_vehicle_file(tmp_path, rpy_rad=rpy), speed_kmh=60.0)
+    sent = _run(node, 3)
+    t = np.arange(len(sent)) / 100.0
+    omega, f = true_imu_signals(_scenario(speed_kmh=60.0).trajectory(), t, (0.0, 0.0, 0.0))
+    R = rpy_to_matrix(*rpy)                     # imu axes in base_link
+    np.testing.assert_allclose([imu_arrays(m)[1] for m in sent], omega @ R, atol=1e-15)
+    np.testing.assert_allclose([imu_arrays(m)[2] for m in sent], f @ R, atol=1e-12)
+    assert np.linalg.norm(f[0] @ R - f[0]) > 0.1   # the rotation is seen
 
 
 def test_duration_limits_the_run(make_node):
@@ -233,7 +258,7 @@ def test_non_finite_truth_is_skipped_with_a_warning(make_node):
 @pytest.mark.parametrize('params, error, text', [
     ({'rate_hz': 0.0}, ParameterException, 'rate_hz'),
     ({'rate_hz': 3000.0}, ParameterException, 'rate_hz'),
-    ({'lever_arm_m': [1.0, 2.0]}, ValueError, 'lever_arm_m'),
+    ({'vehicle_path': '/nonexistent/vehicle.yaml'}, ValueError, 'vehicle.yaml'),
     ({'gyro_bias_corr_times_s': [10.0, -1.0]}, ValueError, 'gyro_bias_corr_times_s'),
     ({'motion_profile': 'teleport'}, ValueError, 'motion profile'),
 ])
@@ -261,7 +286,7 @@ def test_installed_node_rejects_invalid_rate(launch, params, text):
     code = _wait_exit(proc)
     out = launch.output(proc)
     assert code not in (None, 0), out
-    assert 'invalid parameter' in out and text in out and 'out of range' in out
+    assert 'invalid configuration' in out and text in out and 'out of range' in out
 
 
 @pytest.mark.graph

@@ -1,7 +1,7 @@
 """The rig on a curved alignment: trajectory kinematics, IMU signals, rendering, nodes.
 
-References: numerical derivatives of the trajectory, the straight-track formulas of
-session 1 (re-implemented here), the pinhole projection of the foundation's StereoRig
+References: numerical derivatives of the trajectory, the original straight-track
+formulas (re-implemented here), the pinhole projection of the foundation's StereoRig
 and a projected rim polygon (independent of the renderer's conic coverage code).
 """
 import copy
@@ -47,7 +47,7 @@ def curved_map():
 
 
 def _legacy_straight_sample(traj, t):
-    """Session 1's straight-track trajectory formulas, verbatim in substance."""
+    """The original straight-track trajectory formulas, verbatim in substance."""
     s, v, a = traj.profile.evaluate(t)
     q, qd, qdd = traj.vibration.evaluate(t, s, v, a)
     position = np.stack([s + q[:, 0], q[:, 1], q[:, 2]], axis=1)

@@ -14,6 +14,7 @@ from sensor_msgs.msg import PointCloud2
 import yaml
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.vehicle import VehicleMount
 from vlc_common.photodiode_channel import CHANNEL_PARAMETERS, photodiode_config
 from vlc_common.pointcloud import cloud_to_records
 from vlc_stereo_camera.core.photodiode import Photodiode
@@ -31,10 +32,9 @@ def test_config_file_documents_every_parameter_with_its_default():
 
 def test_channel_parameters_build_the_core_config():
     channel = {name: default for name, default, _ in CHANNEL_PARAMETERS}
-    cfg = photodiode_config(channel)
+    cfg = photodiode_config(channel, VehicleMount().photodiode)
     assert cfg.mount_xyz_m == (0.0, 0.8, 2.9) and cfg.fov_half_angle_deg == 80.0
-    with pytest.raises(ValueError):
-        photodiode_config(dict(channel, pd_mount_xyz_m=[0.0, 1.0]))
+    assert cfg.elevation_deg == -41.4
 
 
 @pytest.fixture
@@ -109,7 +109,7 @@ def test_invalid_parameters_stop_the_node(make_node):
     with pytest.raises(ParameterException):
         make(rate_hz=0.0)
     with pytest.raises(ValueError):
-        make(pd_mount_xyz_m=[0.0, 1.0])
+        make(vehicle_path='/nonexistent/vehicle.yaml')
 
 
 @pytest.mark.graph
@@ -145,4 +145,4 @@ def test_installed_node_publishes_rssi_records_and_exits_after_its_duration(laun
 def test_installed_node_refuses_an_invalid_rate(launch):
     proc = launch('vlc_stereo_camera', 'photodiode_node', {'rate_hz': 0.0})
     assert proc.wait(20) == 2
-    assert 'invalid parameter' in launch.output(proc)
+    assert 'invalid configuration' in launch.output(proc)

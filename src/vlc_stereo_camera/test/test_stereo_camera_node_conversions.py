@@ -32,7 +32,7 @@ def test_stamps_are_exact_integer_nanoseconds():
     assert conversions.stamp_ns(epoch) == 1704067200 * 10 ** 9
     for k in (1, 29, 30, 10 ** 6 + 7):
         assert conversions.stamp_ns(epoch, k / 30.0) == 1704067200 * 10 ** 9 + round(k * 1e9 / 30)
-    t = conversions.time_msg(1704067200 * 10 ** 9 + 33_333_333)
+    t = conversions.ns_to_stamp(1704067200 * 10 ** 9 + 33_333_333)
     assert (t.sec, t.nanosec) == (1704067200, 33_333_333)
 
 

@@ -31,9 +31,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import ParameterType
-import rclpy
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.task import Future
@@ -41,6 +38,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
 
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.process import run_node, spin_until_finished
+from vlc_common.stamps import epoch_to_ns, ns_to_stamp, sample_stamp_ns
 from vlc_stereo_camera.core.imu_model import (
     DEG,
     GRAVITY_MPS2,
@@ -49,13 +48,7 @@ from vlc_stereo_camera.core.imu_model import (
     Adis16488Params,
     ImuSampler,
 )
-from vlc_stereo_camera.imu_conversions import (
-    epoch_to_ns,
-    imu_message,
-    ns_to_time,
-    sample_stamp_ns,
-    set_imu_sample,
-)
+from vlc_stereo_camera.imu_conversions import imu_message, set_imu_sample
 from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 
 #: Samples are generated in blocks of this much simulated time and published from the
@@ -66,8 +59,6 @@ BLOCK_S = 0.1
 ASAP_PERIOD_S = 0.001
 #: Lag behind the pacing target above which diagnostics report WARN, seconds.
 LAG_WARN_S = 0.5
-#: Exit code of an invalid configuration (same as stereo_camera_node).
-EXIT_INVALID_CONFIG = 2
 
 
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
@@ -91,9 +82,6 @@ NODE_PARAMETERS = (
                                   'simulated time are published together.')),
     ('imu_frame_id', 'imu_link', _desc('frame_id of the messages (axes of base_link).',
                                        ptype=ParameterType.PARAMETER_STRING)),
-    ('lever_arm_m', [0.0, 0.0, 0.0], _desc('IMU position in base_link [x, y, z], m; adds '
-                                          'w x (w x r) + dw/dt x r to the specific force.',
-                                          ptype=_ARRAY)),
     ('noise_enabled', True, _desc('false: publish the true rate and specific force '
                                   '(every error term off).')),
     ('gyro_arw_deg_rthr', 0.26, _desc('Gyro angle random walk, deg/sqrt(h).', 0.0, 100.0)),
@@ -137,7 +125,6 @@ class Adis16488NodeConfig:
     wait_for_subscribers: int
     follow_clock: bool
     imu_frame_id: str
-    lever_arm_m: tuple
     noise_enabled: bool
     imu: Adis16488Params
     scenario: ScenarioConfig
@@ -151,16 +138,12 @@ def read_config(node):
     rclpy.exceptions.ParameterException
         A value has the wrong type or is out of its declared range.
     ValueError
-        A value is inconsistent (lever arm not 3 numbers, bad correlation times, ...).
+        A value is inconsistent (bad correlation times, an unusable vehicle file, ...).
     """
     for name, default, descriptor in NODE_PARAMETERS:
         node.declare_parameter(name, default, descriptor)
     v = {name: node.get_parameter(name).value for name, _, _ in NODE_PARAMETERS}
     scenario = declare_scenario_parameters(node)
-    lever = tuple(float(x) for x in v['lever_arm_m'])
-    if len(lever) != 3 or not all(math.isfinite(x) for x in lever):
-        raise ValueError(f'lever_arm_m must be 3 finite numbers [x, y, z] in metres, '
-                         f'got {list(v["lever_arm_m"])}')
     if not v['imu_frame_id']:
         raise ValueError('imu_frame_id must not be empty')
     imu = Adis16488Params.from_datasheet_units(
@@ -183,7 +166,7 @@ def read_config(node):
         rate_hz=v['rate_hz'], realtime_factor=v['realtime_factor'],
         publish_period_s=v['publish_period_s'], duration_s=v['duration_s'],
         wait_for_subscribers=v['wait_for_subscribers'], follow_clock=v['follow_clock'],
-        imu_frame_id=v['imu_frame_id'], lever_arm_m=lever,
+        imu_frame_id=v['imu_frame_id'],
         noise_enabled=v['noise_enabled'], imu=imu, scenario=scenario)
 
 
@@ -194,7 +177,11 @@ class Adis16488Node(Node):
         super().__init__('adis16488_node', **kwargs)
         self.config = cfg = read_config(self)
         model = Adis16488Model(cfg.rate_hz, cfg.scenario.seed, cfg.imu)
-        self._sampler = ImuSampler(cfg.scenario.trajectory(), model, cfg.lever_arm_m)
+        mount = cfg.scenario.vehicle().imu
+        # The mount's lever arm adds w x (w x r) + dw/dt x r to the specific force; its
+        # boresight rotates both signals into the IMU's axes.
+        self._sampler = ImuSampler(cfg.scenario.trajectory(), model, mount.position_m,
+                                   mount.R_base_imu if np.any(mount.rpy_rad) else None)
         self._epoch_ns = epoch_to_ns(cfg.scenario.epoch_s)
         # One message refilled per sample: frame and covariances never change.
         self._msg = imu_message(self._epoch_ns, cfg.imu_frame_id, (0.0, 0.0, 0.0),
@@ -326,30 +313,13 @@ class Adis16488Node(Node):
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         # Stamped on the simulated clock, like the samples it reports on.
-        msg.header.stamp = ns_to_time(self._last_stamp_ns if self._last_stamp_ns is not None
+        msg.header.stamp = ns_to_stamp(self._last_stamp_ns if self._last_stamp_ns is not None
                                       else self._epoch_ns)
         self._diag_pub.publish(msg)
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = Adis16488Node()
-    except (ParameterException, ValueError) as exc:
-        rclpy.logging.get_logger('adis16488_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    exit_code = 0
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-        if node.finished.done():
-            exit_code = node.finished.result()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node(Adis16488Node, 'adis16488_node', args, spin=spin_until_finished)
 
 
 if __name__ == '__main__':

@@ -25,14 +25,13 @@ field                   type     offset  meaning
 """
 import array
 
-from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from sensor_msgs.msg import CameraInfo, Image
-from std_msgs.msg import Header
 
 from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401 (re-exported)
+from vlc_common.stamps import header, ns_to_stamp  # noqa: F401 (re-exported)
 
 SPOT_DTYPE = np.dtype({
     'names': ['uid', 'in_left', 'in_right', 'row_first', 'row_last', 'u_left', 'v_left',
@@ -49,15 +48,6 @@ def stamp_ns(epoch_s, t_rel_s=0.0):
     """Integer nanoseconds of ``epoch_s + t_rel_s`` without float rounding of the epoch."""
     whole = int(np.floor(epoch_s))
     return whole * 1_000_000_000 + int(round((epoch_s - whole + t_rel_s) * 1e9))
-
-
-def time_msg(ns):
-    """builtin_interfaces/Time from integer nanoseconds."""
-    return Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
-
-
-def header(ns, frame_id):
-    return Header(stamp=time_msg(ns), frame_id=frame_id)
 
 
 def image_msg(image, hdr):

@@ -1,37 +1,7 @@
-"""IMU arrays → sensor_msgs/Imu, and the simulated clock's stamps."""
-from fractions import Fraction
-
-from builtin_interfaces.msg import Time
+"""IMU arrays ↔ sensor_msgs/Imu."""
 from sensor_msgs.msg import Imu
 
-NS_PER_S = 1_000_000_000
-
-
-def epoch_to_ns(epoch_s):
-    """Simulated-clock epoch in integer nanoseconds (whole seconds kept exact)."""
-    whole = int(epoch_s // 1)
-    return whole * NS_PER_S + int(round((epoch_s - whole) * NS_PER_S))
-
-
-def sample_stamp_ns(epoch_ns, index, rate_hz):
-    """Stamp of sample ``index`` of a sensor at ``rate_hz``: epoch + index / rate, in ns.
-
-    Computed in exact rational arithmetic and rounded to the nanosecond once, so stamps
-    never accumulate a period's rounding error (at 400 Hz they are exactly 2 500 000 ns
-    apart, at 2460 Hz 406 504 or 406 505 ns).
-    """
-    return epoch_ns + round(int(index) * Fraction(NS_PER_S) / Fraction(rate_hz))
-
-
-def ns_to_time(stamp_ns):
-    """builtin_interfaces/Time from integer nanoseconds."""
-    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
-    return Time(sec=sec, nanosec=nanosec)
-
-
-def time_to_ns(stamp):
-    """Integer nanoseconds of a builtin_interfaces/Time."""
-    return stamp.sec * NS_PER_S + stamp.nanosec
+from vlc_common.stamps import stamp_to_ns
 
 
 def imu_message(stamp_ns, frame_id, omega, f, gyro_variance, accel_variance):
@@ -66,7 +36,7 @@ def set_imu_sample(msg, stamp_ns, omega, f):
     Lets a publisher refill one message per sample instead of building a new one
     (``publish`` serialises the message at once).
     """
-    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
     av, la = msg.angular_velocity, msg.linear_acceleration
     av.x, av.y, av.z = float(omega[0]), float(omega[1]), float(omega[2])
@@ -77,4 +47,4 @@ def set_imu_sample(msg, stamp_ns, omega, f):
 def imu_arrays(msg):
     """(stamp_ns, omega (3,), f (3,)) of a sensor_msgs/Imu, plain floats."""
     av, la = msg.angular_velocity, msg.linear_acceleration
-    return time_to_ns(msg.header.stamp), (av.x, av.y, av.z), (la.x, la.y, la.z)
+    return stamp_to_ns(msg.header.stamp), (av.x, av.y, av.z), (la.x, la.y, la.z)

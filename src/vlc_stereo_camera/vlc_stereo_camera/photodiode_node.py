@@ -36,10 +36,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import ParameterType
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -52,12 +49,11 @@ from vlc_common.core.records import RSSI_DTYPE
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.photodiode_channel import declare_channel_parameters, photodiode_config
 from vlc_common.pointcloud import records_to_cloud
+from vlc_common.process import run_node, spin_until_finished
+from vlc_common.stamps import epoch_to_ns, ns_to_stamp, sample_stamp_ns, stamp_to_ns
 from vlc_stereo_camera.core.photodiode import Photodiode
-from vlc_stereo_camera.imu_conversions import epoch_to_ns, ns_to_time, sample_stamp_ns, time_to_ns
 from vlc_stereo_camera.rig_params import ScenarioConfig, declare_scenario_parameters
 
-#: Exit code of an invalid configuration (as the other rig nodes).
-EXIT_INVALID_CONFIG = 2
 #: Timer period of the self-paced mode, s (wall clock).
 PACE_PERIOD_S = 0.005
 
@@ -138,7 +134,8 @@ def read_config(node):
         realtime_factor=v['realtime_factor'], duration_s=v['duration_s'],
         wait_for_subscribers=v['wait_for_subscribers'], frame_id=v['frame_id'],
         lamp_map_path=v['lamp_map_path'], subsamples=v['subsamples'],
-        photodiode=photodiode_config(channel, **noise), scenario=scenario)
+        photodiode=photodiode_config(channel, scenario.vehicle().photodiode, **noise),
+        scenario=scenario)
 
 
 def sample_records(sample):
@@ -191,7 +188,7 @@ class PhotodiodeNode(Node):
         return (index + 0.5) / self.config.rate_hz
 
     def _on_clock(self, msg):
-        t_s = (time_to_ns(msg.clock) - self._epoch_ns) / 1e9
+        t_s = (stamp_to_ns(msg.clock) - self._epoch_ns) / 1e9
         if self._next_index is None:
             # First tick: samples stamped before it are not published.
             self._next_index = max(0, math.ceil(t_s * self.config.rate_hz - 1e-9))
@@ -223,7 +220,7 @@ class PhotodiodeNode(Node):
             n = self._next_index
             sample = self._pd.sample(n, cfg.rate_hz)
             stamp_ns = sample_stamp_ns(self._epoch_ns, n, cfg.rate_hz)
-            header = Header(stamp=ns_to_time(stamp_ns), frame_id=cfg.frame_id)
+            header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=cfg.frame_id)
             self._pub.publish(records_to_cloud(sample_records(sample), header))
             self._published += 1
             self._last_lamps = int(sample.uid.size)
@@ -244,29 +241,12 @@ class PhotodiodeNode(Node):
                   'seed': str(cfg.scenario.seed)}
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
-        msg.header.stamp = ns_to_time(self._last_stamp_ns)
+        msg.header.stamp = ns_to_stamp(self._last_stamp_ns)
         self._diag_pub.publish(msg)
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = PhotodiodeNode()
-    except (ParameterException, ValueError, OSError) as exc:
-        rclpy.logging.get_logger('photodiode_node').fatal(f'invalid parameter: {exc}')
-        rclpy.try_shutdown()
-        return EXIT_INVALID_CONFIG
-    exit_code = 0
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-        if node.finished.done():
-            exit_code = node.finished.result()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return exit_code
+    return run_node(PhotodiodeNode, 'photodiode_node', args, spin=spin_until_finished)
 
 
 if __name__ == '__main__':

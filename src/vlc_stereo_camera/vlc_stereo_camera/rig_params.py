@@ -15,6 +15,7 @@ from rcl_interfaces.msg import ParameterType
 
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.lamp_map import default_lamp_map_path
+from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
@@ -36,6 +37,9 @@ SCENARIO_PARAMETERS = (
     ('vibration_enabled', True, _desc('Platform vibration per paper eq. 21 on or off.')),
     ('vibration_scale', 1.0, _desc('Scale of all vibration amplitudes (1 = paper: heading '
                                    '-5.0..+7.5 deg).', 0.0, 5.0)),
+    ('vehicle_path', '', _desc("Vehicle mount file (sensor extrinsics in base_link); '' = "
+                               "share/vlc_common/config/vehicle.yaml.",
+                               ptype=ParameterType.PARAMETER_STRING)),
     ('alignment', 'straight', _desc('Track alignment: ' + ', '.join(NAMED_ALIGNMENTS)
                                     + ' (straight = along map x).',
                                     ptype=ParameterType.PARAMETER_STRING)),
@@ -56,6 +60,11 @@ class ScenarioConfig:
     vibration_enabled: bool
     vibration_scale: float
     alignment: str = 'straight'
+    vehicle_path: str = ''
+
+    def vehicle(self):
+        """The VehicleMount the rig's sensors sit on (VehicleFileError if unusable)."""
+        return load_vehicle(self.vehicle_path)
 
     def track_alignment(self):
         """The Alignment named by ``alignment`` (raises ValueError if unknown)."""

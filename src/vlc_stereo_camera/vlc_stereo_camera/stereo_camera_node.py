@@ -43,11 +43,8 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import ParameterType
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
@@ -57,14 +54,11 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.process import keep_large_buffers
+from vlc_common.process import keep_large_buffers, run_node, spin_until_finished
 from vlc_stereo_camera import conversions
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
 from vlc_stereo_camera.rig_params import declare_scenario_parameters
-
-EXIT_INVALID_CONFIG = 2
-
 
 _STR = ParameterType.PARAMETER_STRING
 # name, default, descriptor. Documented key by key in config/stereo_camera_node.yaml.
@@ -87,16 +81,6 @@ NODE_PARAMETERS = (
     ('cy', 359.5, _desc('Principal point v, px.', 0.0, 4096.0)),
     ('baseline_m', StereoRig.baseline_m, _desc('Stereo baseline along the left optical x axis, m.',
                                0.01, 2.0)),
-    ('mount_x_m', StereoRig.mount_xyz_m[0], _desc('Left optical centre in base_link: x, m.',
-                                                  -20.0, 20.0)),
-    ('mount_y_m', StereoRig.mount_xyz_m[1], _desc('Left optical centre in base_link: y '
-                                                  '(left), m.', -5.0, 5.0)),
-    ('mount_z_m', StereoRig.mount_xyz_m[2], _desc('Left optical centre in base_link: z '
-                                                  '(up), m.', -5.0, 10.0)),
-    ('placement_angle_deg', StereoRig.placement_angle_deg,
-     _desc('Optical axis turned from the wall normal toward the running direction '
-           '(paper eq. 16), deg.', 0.0, 89.0)),
-    ('pitch_deg', StereoRig.pitch_deg, _desc('Optical axis tilted down, deg.', -60.0, 80.0)),
     ('fps', 30.0, _desc('Frame rate, frames/s.', 1.0, 240.0)),
     ('row_time_s', 30e-6, _desc('Rolling-shutter line time: row r starts exposing at '
                                 't0 + r*row_time_s, s.', 1e-6, 1e-3)),
@@ -156,11 +140,6 @@ class StereoCameraNodeConfig:
     cx: float
     cy: float
     baseline_m: float
-    mount_x_m: float
-    mount_y_m: float
-    mount_z_m: float
-    placement_angle_deg: float
-    pitch_deg: float
     fps: float
     row_time_s: float
     exposure_s: float
@@ -187,14 +166,17 @@ class StereoCameraNodeConfig:
     clock_rate_hz: float
     wait_for_subscribers: int
 
-    def renderer_config(self, epoch_s):
-        """The RendererConfig these parameters describe (ValueError if inconsistent)."""
+    def renderer_config(self, epoch_s, vehicle):
+        """The RendererConfig these parameters describe on ``vehicle`` (a VehicleMount;
+        ValueError if inconsistent).
+        """
+        mount = vehicle.camera
         return RendererConfig(
             intrinsics=CameraIntrinsics(width=self.image_width, height=self.image_height,
                                         fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy),
             baseline_m=self.baseline_m,
-            mount_xyz_m=(self.mount_x_m, self.mount_y_m, self.mount_z_m),
-            placement_angle_deg=self.placement_angle_deg, pitch_deg=self.pitch_deg,
+            mount_xyz_m=tuple(float(v) for v in mount.position_m),
+            placement_angle_deg=mount.placement_angle_deg, pitch_deg=mount.pitch_deg,
             fps=self.fps, row_time_s=self.row_time_s, exposure_s=self.exposure_s,
             epoch_s=epoch_s, chip_rate_hz=self.chip_rate_hz, off_level=self.off_level,
             lamp_clock_ppm=self.lamp_clock_ppm, lamp_diameter_m=self.lamp_diameter_m,
@@ -221,7 +203,7 @@ class StereoCameraNode(Node):
             self.declare_parameter(name, default, descriptor)
         self.config = cfg = StereoCameraNodeConfig(
             **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
-        renderer_config = cfg.renderer_config(self.scenario.epoch_s)
+        renderer_config = cfg.renderer_config(self.scenario.epoch_s, self.scenario.vehicle())
         trajectory = self.scenario.trajectory()
         lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
                                                       self.scenario.alignment))
@@ -346,7 +328,7 @@ class StereoCameraNode(Node):
                     wall0 += lag
             if t_tick <= t_frame:
                 ns = conversions.stamp_ns(self.scenario.epoch_s, t_tick)
-                self.pub_clock.publish(ClockMsg(clock=conversions.time_msg(ns)))
+                self.pub_clock.publish(ClockMsg(clock=conversions.ns_to_stamp(ns)))
                 self._sim_ns = ns
                 tick += 1
             else:
@@ -420,26 +402,9 @@ class StereoCameraNode(Node):
 def main(args=None):
     cv2.setNumThreads(1)
     keep_large_buffers()
-    rclpy.init(args=args)
-    try:
-        node = StereoCameraNode()
-    except (ParameterException, ValueError, OSError) as exc:
-        rclpy.logging.get_logger('stereo_camera_node').fatal(
-            f'invalid configuration, not starting: {exc}')
-        rclpy.try_shutdown()
-        sys.exit(EXIT_INVALID_CONFIG)
-    exit_code = 0
-    try:
-        rclpy.spin_until_future_complete(node, node.finished)
-        exit_code = node.exit_code
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.stop()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    sys.exit(exit_code)
+    return run_node(StereoCameraNode, 'stereo_camera_node', args, spin=spin_until_finished,
+                    stop=StereoCameraNode.stop)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

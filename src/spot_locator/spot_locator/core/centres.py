@@ -254,7 +254,7 @@ class _RowSums:
         h, w = roi.shape
         self.roi = roi
         # Cumulative sums, O(h·w) and single-threaded. (A product with a triangular
-        # (w, w + 1) matrix is O(h·w²) and goes to the multi-threaded BLAS: 15 ms and
+        # (w, w + 1) matrix is O(h·w²) and goes to the multi-threaded BLAS: slow, with
         # wall-time spikes on a near lamp's 100-row, 250-column ROI.) Both in one
         # (2, h, w + 1) array, read through flat indices r·(w + 1) + c: one gather
         # gives a window's sum and first moment.

@@ -1,6 +1,6 @@
 """Integrity of the fixes: gating, lamp association, contradiction tracking, status.
 
-Rules (issue "Integrity"):
+Rules:
 
 * every fix is gated: its Mahalanobis distance to the filter's prediction,
   ``d² = (z − s)² / (P_ss + r)``, must not exceed ``gate_chi2`` (χ², 1 dof), and a

@@ -434,14 +434,18 @@ class ImuSampler:
         The error model; its rate sets the sample times.
     lever_arm_m : array_like (3,)
         IMU position in base_link, m.
+    R_base_imu : array_like (3, 3), optional
+        Boresight: the IMU's axes in base_link; the sensed rate and specific force are
+        these axes' components (None: the IMU is aligned with base_link).
     """
 
-    def __init__(self, trajectory, model, lever_arm_m=(0.0, 0.0, 0.0)):
+    def __init__(self, trajectory, model, lever_arm_m=(0.0, 0.0, 0.0), R_base_imu=None):
         self.trajectory = trajectory
         self.model = model
         self.lever_arm_m = np.asarray(lever_arm_m, dtype=float).reshape(3)
         if not np.all(np.isfinite(self.lever_arm_m)):
             raise ValueError(f'lever_arm_m must be finite, got {lever_arm_m}')
+        self.R_base_imu = None if R_base_imu is None else np.asarray(R_base_imu, float)
         self.next_index = 0
 
     def next(self, count):
@@ -449,6 +453,8 @@ class ImuSampler:
         index = self.next_index + np.arange(int(count), dtype=np.int64)
         t = index / self.model.rate_hz
         omega_true, f_true = true_imu_signals(self.trajectory, t, self.lever_arm_m)
+        if self.R_base_imu is not None:
+            omega_true, f_true = omega_true @ self.R_base_imu, f_true @ self.R_base_imu
         valid = np.all(np.isfinite(omega_true), axis=1) & np.all(np.isfinite(f_true), axis=1)
         # Invalid rows still consume their noise draws, so later samples do not depend on
         # whether earlier ones were valid.

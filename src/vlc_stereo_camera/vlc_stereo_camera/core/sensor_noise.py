@@ -29,7 +29,7 @@ Chain, from the lamp to a digital number (DN), per pixel and per row exposure:
 
 Background: a dim tunnel, ``background_dn`` on average with a smooth gradient (brighter
 toward the bottom-left of the image, where the camera sees the lit wall). A full-frame
-fresh noise draw per frame costs ~30 ms in numpy, so whole-frame background noise comes
+fresh noise draw per frame would cost more than rendering the lamps, so background noise comes
 from a seeded bank of pre-rendered noisy background frames (one picked per frame and
 camera); the regions around lamps get fresh noise every frame.
 """
