@@ -139,7 +139,7 @@ UNDISTORT_MAX_ITERATIONS = 100
 UNDISTORT_EPS_PX = 1e-6
 
 #: Tolerances of the consistency checks of a model: R orthonormal, a rectified pair's
-#: common P[:, :3] (relative).
+#: common fx, fy, cy (relative).
 _ROTATION_TOL = 1e-5
 _RECTIFIED_PAIR_RTOL = 1e-6
 
@@ -441,7 +441,8 @@ class StereoCameraModel:
     Raises
     ------
     CameraModelError
-        Image sizes that differ, P[:, :3] that differ (not a rectified pair), a vertical
+        Image sizes that differ, P[:, :3] that differ other than in cx (not a rectified
+        pair; a cx difference is a disparity offset, handled), a vertical
         offset P[1,3] ≠ 0 on the right camera, a left P[:, 3] ≠ 0, or a baseline ≤ 0.
     """
 
@@ -453,9 +454,13 @@ class StereoCameraModel:
             raise CameraModelError('width', f'left {self.left.width}x{self.left.height} and '
                                             f'right {self.right.width}x{self.right.height} '
                                             'image sizes differ')
-        if not np.allclose(self.left.P[:, :3], self.right.P[:, :3],
+        # cx may differ (stereoRectify without CALIB_ZERO_DISPARITY): a disparity offset
+        same = np.ones((3, 3), dtype=bool)
+        same[0, 2] = False
+        if not np.allclose(self.left.P[:, :3][same], self.right.P[:, :3][same],
                            rtol=_RECTIFIED_PAIR_RTOL, atol=1e-9):
-            raise CameraModelError('P', 'left and right P[:, :3] differ: not a rectified pair')
+            raise CameraModelError('P', 'left and right P[:, :3] differ in fx, fy, skew or '
+                                        'cy: not a rectified pair')
         if np.any(self.left.P[:, 3] != 0.0):
             raise CameraModelError('P', f'left P[:, 3] = {self.left.P[:, 3]} must be zero')
         if self.right.P[1, 3] != 0.0 or self.right.P[2, 3] != 0.0:
@@ -469,7 +474,7 @@ class StereoCameraModel:
     @property
     def baseline_m(self):
         """Baseline b = −P_right[0,3] / P_right[0,0], m."""
-        return float(-self.right.P[0, 3] / self.right.P[0, 0])
+        return float(-self.right.P[0, 3] / self.right.P[0, 0]) + 0.0     # no -0.0
 
     @classmethod
     def from_rig(cls, rig, D_left=None, D_right=None):
