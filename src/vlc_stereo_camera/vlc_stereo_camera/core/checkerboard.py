@@ -22,8 +22,9 @@ the margin or the background) is uniform. The others — the pixels an edge cros
 are supersampled: the board coordinates of ``supersample``² sub-pixel centres are
 interpolated bilinearly from the pixel's corners (the lens and the perspective are
 smooth at the scale of a pixel) and the pixel takes the mean brightness: a box-filtered,
-anti-aliased image. Then a Gaussian PSF (``blur_sigma_px``), Gaussian noise
-(``noise_dn``) and rounding to 8 bits.
+anti-aliased image. Only the pixels inside the bounding box of the board's projected
+outline are computed; the rest is background. Then a Gaussian PSF (``blur_sigma_px``),
+Gaussian noise (``noise_dn``) and rounding to 8 bits.
 """
 from dataclasses import dataclass
 
@@ -75,7 +76,7 @@ class Checkerboard:
         cols, rows = self.inner_corners
         return np.array([(cols + 1) / 2.0, (rows + 1) / 2.0, 0.0]) * self.square_m
 
-    def outline(self, border_squares=0.5, points_per_side=16):
+    def outline(self, border_squares=0.25, points_per_side=16):
         """Points (4·n, 3) on a rectangle ``border_squares`` outside the squares, m.
 
         With the default half square, the quiet zone a detector needs around the board.
@@ -159,6 +160,7 @@ class BoardRenderer:
         u, v = np.meshgrid(np.arange(w + 1) - 0.5, np.arange(h + 1) - 0.5)
         rays = camera.undistort_normalized(np.column_stack([u.ravel(), v.ravel()]))
         self._rays = rays.reshape(h + 1, w + 1, 2)
+        self._ray_radius = float(np.hypot(rays[:, 0], rays[:, 1]).max())
 
     def _board_coords(self, xy, R, t):
         """Board coordinates (s, q) (m) of normalized rays ``xy`` (..., 2)."""
@@ -174,13 +176,50 @@ class BoardRenderer:
             q = np.where(lam > 0, lam * b - e2 @ t, np.nan)
         return s, q
 
+    def _board_box(self, R, t):
+        """(row0, row1, col0, col1): the pixels the board (margin included) can touch,
+        from its projected outline plus a few pixels; the whole image when part of the
+        outline is behind the camera or outside the lens's field of view (where the
+        distortion polynomial is no longer monotonic and projections are not to be
+        trusted).
+        """
+        h, w = self.camera.height, self.camera.width
+        whole = (0, h, 0, w)
+        p = self.board.outline(self.board.margin_squares, 32) @ R.T + t
+        if np.any(p[:, 2] <= 0):
+            return whole
+        if np.any(np.hypot(p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]) > self._ray_radius):
+            return whole
+        uv, _ = self.camera.project(p)
+        pad = 4
+        c0, r0 = np.floor(uv.min(axis=0)).astype(int) - pad
+        c1, r1 = np.ceil(uv.max(axis=0)).astype(int) + pad
+        return max(r0, 0), min(r1, h), max(c0, 0), min(c1, w)
+
     def render(self, R_cam_board, t_cam_board, rng):
         """The raw image (H, W) uint8 of the board at this pose (x_cam = R·x_board + t)."""
         cfg, board = self.config, self.board
         R = np.asarray(R_cam_board, dtype=float)
         t = np.asarray(t_cam_board, dtype=float)
         table = board.label_brightness(cfg.black_dn, cfg.white_dn, cfg.background_dn)
-        s, q = self._board_coords(self._rays, R, t)               # (H+1, W+1)
+        image = np.full((self.camera.height, self.camera.width), cfg.background_dn,
+                        dtype=np.float32)
+        r0, r1, c0, c1 = self._board_box(R, t)
+        if r1 > r0 and c1 > c0:
+            image[r0:r1, c0:c1] = self._render_box(self._rays[r0:r1 + 1, c0:c1 + 1], R, t,
+                                                   table)
+        if cfg.blur_sigma_px > 0:
+            image = cv2.GaussianBlur(image, (0, 0), cfg.blur_sigma_px)
+        if cfg.noise_dn > 0:
+            image += cfg.noise_dn * rng.standard_normal(image.shape, dtype=np.float32)
+        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+    def _render_box(self, rays, R, t, table):
+        """Mean brightness (h, w) of the pixels whose corner rays are ``rays``
+        (h + 1, w + 1, 2).
+        """
+        board = self.board
+        s, q = self._board_coords(rays, R, t)
         label = board.cell_label(s, q)
         top_left = label[:-1, :-1]
         uniform = ((top_left == label[:-1, 1:]) & (top_left == label[1:, :-1])
@@ -188,7 +227,7 @@ class BoardRenderer:
         image = table[top_left]
         rows, cols = np.nonzero(~uniform)
         if rows.size:
-            n = int(cfg.supersample)
+            n = int(self.config.supersample)
             f = ((np.arange(n) + 0.5) / n).astype(np.float32)
             fu, fv = (g.ravel()[None, :] for g in np.meshgrid(f, f))  # sub-pixel offsets
             sub = []
@@ -197,14 +236,10 @@ class BoardRenderer:
                 c10, c11 = grid[rows + 1, cols], grid[rows + 1, cols + 1]
                 # bilinear in the pixel: c00 + Δu·fu + Δv·fv + Δuv·fu·fv
                 sub.append(c00[:, None] + (c01 - c00)[:, None] * fu
-                            + (c10 - c00)[:, None] * fv
-                            + (c11 - c10 - c01 + c00)[:, None] * (fu * fv))
+                           + (c10 - c00)[:, None] * fv
+                           + (c11 - c10 - c01 + c00)[:, None] * (fu * fv))
             image[rows, cols] = table[board.cell_label(*sub)].mean(axis=1)
-        if cfg.blur_sigma_px > 0:
-            image = cv2.GaussianBlur(image, (0, 0), cfg.blur_sigma_px)
-        if cfg.noise_dn > 0:
-            image = image + rng.normal(0.0, cfg.noise_dn, image.shape).astype(np.float32)
-        return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+        return image
 
     def corners(self, R_cam_board, t_cam_board):
         """True raw pixels (N, 2) of the inner corners, in :meth:`Checkerboard.object_points`
@@ -258,57 +293,105 @@ class StereoBoardRenderer:
 
 
 def calibration_poses(renderer, count, rng, distance_m=(0.6, 1.1), max_tilt_deg=40.0,
-                      max_roll_deg=15.0, in_both=True, max_tries=200):
+                      max_roll_deg=15.0, in_both=True, draws=6):
     """``count`` board poses (R_left_board, t_left_board) spread over the image, as a
     careful calibration takes them.
 
     The board is pushed in turn into the four corners, to the four edges and into the
-    centre of the image (where the distortion is largest, and where it is not), at a
-    random distance in ``distance_m`` (m), turned toward the camera and then tilted by
-    up to ±25° more (within ``max_tilt_deg``) and rolled by up to ``max_roll_deg``. Each
-    try aims the board centre at the target plus noise, pulled toward the image centre
-    by a growing fraction, until the board is in view: the first pose found is the
-    outermost one.
+    centre of the image (where the distortion is largest, and where it is not). A pose
+    is drawn as a distance in ``distance_m`` (m), a turn toward the camera plus up to
+    ±25° of tilt about each board axis (within ``max_tilt_deg``) and a roll of up to
+    ``max_roll_deg``; its centre is then slid from the image centre toward the target
+    (bisection on the fraction of the way) as far as the board stays in view. Of
+    ``draws`` such poses the one whose inner corners come nearest the target is kept.
 
     ``renderer`` is a :class:`BoardRenderer` or a :class:`StereoBoardRenderer`. For a
     stereo pair with ``in_both`` every pose is in view of both cameras (targets in the
     left image); without, the targets alternate between the left and the right image
-    and each pose need be in view of its own camera only, so each camera's image is
-    covered to its edges, as single-camera views of a real calibration do.
+    and each pose need be in view of its own camera only, so that each camera's image
+    is covered to its edges, as the single-camera views of a real calibration do.
     """
     stereo = hasattr(renderer, 'left')
-    cameras = [renderer.left.camera, renderer.right.camera] if stereo else [renderer.camera]
     targets = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (0.5, 0.5),
                (0.5, 0.0), (0.5, 1.0), (0.0, 0.5), (1.0, 0.5)]
+    alternate = stereo and not in_both
     poses = []
     for k in range(count):
-        alternate = stereo and not in_both
         side = k % 2 if alternate else 0
-        camera = cameras[side]
-        size = np.array([camera.width, camera.height], dtype=float)
         target = np.array(targets[(k // 2 if alternate else k) % len(targets)])
-        for attempt in range(max_tries):
-            pull = attempt / max_tries
-            aim = target + (0.5 - target) * pull + rng.normal(0.0, 0.02, 2)
-            ray = np.append(camera.undistort_normalized(aim * size)[0], 1.0)
-            centre = ray / np.linalg.norm(ray) * rng.uniform(*distance_m)
-            tilt_x = np.clip(-np.degrees(np.arctan(ray[1])) + rng.uniform(-25.0, 25.0),
-                             -max_tilt_deg, max_tilt_deg)
-            tilt_y = np.clip(np.degrees(np.arctan(ray[0])) + rng.uniform(-25.0, 25.0),
-                             -max_tilt_deg, max_tilt_deg)
-            pose = board_pose(centre, renderer.board, rng.uniform(-max_roll_deg, max_roll_deg),
-                              tilt_x, tilt_y)
-            if side == 1:                    # aimed in the right camera: back to the left
-                R_rl, T_rl = renderer.stereo.extrinsics()
-                pose = (R_rl.T @ pose[0], R_rl.T @ (pose[1] - T_rl))
-            seen = renderer.visible(*pose)
-            if not stereo:
-                seen = (seen,)
-            if all(seen) if in_both else seen[side]:
-                poses.append(pose)
-                break
-        else:
+        best, best_gap = None, np.inf
+        for _ in range(draws):
+            draw = _PoseDraw(rng.uniform(*distance_m), rng.normal(0.0, 0.01, 2),
+                             rng.choice([-1.0, 1.0], 2) * rng.uniform(10.0, 35.0, 2),
+                             rng.uniform(-max_roll_deg, max_roll_deg), max_tilt_deg)
+            if not _in_view(renderer, _aimed_pose(renderer, side, target, 0.0, draw), side,
+                            in_both):
+                continue
+            lo, hi = 0.0, 1.0                                  # in view at lo, not at hi
+            if _in_view(renderer, _aimed_pose(renderer, side, target, hi, draw), side,
+                        in_both):
+                lo = hi
+            for _ in range(12 if lo < hi else 0):
+                mid = 0.5 * (lo + hi)
+                if _in_view(renderer, _aimed_pose(renderer, side, target, mid, draw), side,
+                            in_both):
+                    lo = mid
+                else:
+                    hi = mid
+            pose = _aimed_pose(renderer, side, target, lo, draw)
+            corners = renderer.corners(*pose)[side] if stereo else renderer.corners(*pose)
+            view = _view(renderer, side)
+            size = np.array([view.camera.width - 1, view.camera.height - 1], dtype=float)
+            gap = np.linalg.norm(corners - target * size, axis=1).min()
+            if gap < best_gap:
+                best, best_gap = pose, gap
+        if best is None:
             raise ValueError(f'no board pose in view found for the image position '
-                             f'{tuple(target)} in {max_tries} tries; use a smaller board or '
-                             'a larger distance')
+                             f'{tuple(target)} in {draws} draws; use a smaller board or a '
+                             'larger distance')
+        poses.append(best)
     return poses
+
+
+@dataclass
+class _PoseDraw:
+    """The random part of a pose: distance (m), aim jitter (fraction of the image),
+    tilts about the board's x and y beyond facing the camera (deg), roll (deg).
+    """
+
+    distance_m: float
+    jitter: np.ndarray
+    tilt_deg: np.ndarray
+    roll_deg: float
+    max_tilt_deg: float
+
+
+def _view(renderer, side):
+    return (renderer.left, renderer.right)[side] if hasattr(renderer, 'left') else renderer
+
+
+def _aimed_pose(renderer, side, target, fraction, draw):
+    """The pose of ``draw`` with its centre ``fraction`` of the way from the image centre
+    to ``target`` (fractions of the image of camera ``side``), in the left frame.
+    """
+    camera = _view(renderer, side).camera
+    size = np.array([camera.width, camera.height], dtype=float)
+    aim = 0.5 + (target - 0.5) * fraction + draw.jitter
+    ray = np.append(camera.undistort_normalized(aim * size)[0], 1.0)
+    tilt_x = np.clip(-np.degrees(np.arctan(ray[1])) + draw.tilt_deg[0], -draw.max_tilt_deg,
+                     draw.max_tilt_deg)
+    tilt_y = np.clip(np.degrees(np.arctan(ray[0])) + draw.tilt_deg[1], -draw.max_tilt_deg,
+                     draw.max_tilt_deg)
+    R, t = board_pose(ray / np.linalg.norm(ray) * draw.distance_m, renderer.board,
+                      draw.roll_deg, tilt_x, tilt_y)
+    if side == 1:                              # aimed in the right camera: to the left frame
+        R_rl, T_rl = renderer.stereo.extrinsics()
+        R, t = R_rl.T @ R, R_rl.T @ (t - T_rl)
+    return R, t
+
+
+def _in_view(renderer, pose, side, in_both):
+    if not hasattr(renderer, 'left'):
+        return renderer.visible(*pose)
+    seen = renderer.visible(*pose)
+    return all(seen) if in_both else seen[side]
