@@ -2,7 +2,7 @@
 
 The simulator's checkerboard renderer images a 15×10-corner board of 25 mm squares
 through two 3.9 mm M12 lenses (k1 ≈ −0.3, k2 ≈ 0.1, small p1, p2, k3, principal points
-off centre) 12 cm apart, the right camera turned by 0.23°. 16 pairs, the board pushed in
+off centre) 12 cm apart, the right camera turned by 0.24°. 16 pairs, the board pushed in
 turn into the corners, edges and centre of the left and of the right image (then often
 cut by the other image: a single-camera view). The command must recover the lenses.
 """

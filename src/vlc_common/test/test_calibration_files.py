@@ -84,7 +84,7 @@ distortion_coefficients:
 rectification_matrix:
   rows: 3
   cols: 3
-  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+  data: [0.99983, 0.01666, -0.00833, -0.01666, 0.99986, 0.00093, 0.00835, -0.00079, 0.99996]
 projection_matrix:
   rows: 3
   cols: 4
@@ -108,6 +108,7 @@ def test_hand_written_ros_files(tmp_path):
     calibration = load_ros_stereo(left, right)
     np.testing.assert_array_equal(calibration.left.K, K1)
     np.testing.assert_array_equal(calibration.left.D, D1)
+    assert calibration.left.R[0, 1] == 0.01666          # a rotation written to 5 decimals
     assert calibration.baseline_m == pytest.approx(0.12)             # 123.6 / 1030
     assert calibration.camera_name == 'narrow_stereo'
     assert np.isnan(calibration.rms_px) and calibration.pairs == 0
@@ -135,8 +136,8 @@ def test_hand_written_ros_files(tmp_path):
     (('data: [1040.00000,', 'data: [-1040.00000,'), 'camera_matrix',
      'focal lengths fx = -1040, fy = 1041.5 px must be > 0'),
     (('data: [1030.00000,', 'data: [0.0,'), 'projection_matrix', 'must be > 0'),
-    (('data: [1.0, 0.0, 0.0, 0.0, 1.0', 'data: [1.0, 0.0, 0.3, 0.0, 1.0'),
-     'rectification_matrix', 'not a rotation'),
+    (('data: [0.99983, 0.01666', 'data: [0.99983, 0.01766'), 'rectification_matrix',
+     'not a rotation'),
     (('distortion_model: plumb_bob', 'distortion_model: equidistant'), 'distortion_model',
      "'equidistant' is not supported"),
 ])

@@ -140,7 +140,7 @@ UNDISTORT_EPS_PX = 1e-6
 
 #: Tolerances of the consistency checks of a model: R orthonormal, a rectified pair's
 #: common fx, fy, cy (relative).
-_ROTATION_TOL = 1e-5
+_ROTATION_TOL = 1e-4
 _RECTIFIED_PAIR_RTOL = 1e-6
 
 
