@@ -5,6 +5,9 @@ The lens is a 3.9 mm M12 lens on the rig's 1280×720 sensor with 3.75 µm pixels
 distortion widens the raw image to 73°), with the distortion of such lenses: k1 ≈ −0.3,
 k2 ≈ 0.1, small p1, p2, k3, and a principal point a few pixels off centre.
 """
+import array
+import types
+
 import cv2
 import numpy as np
 import pytest
@@ -137,7 +140,13 @@ def test_camera_info_round_trip_shaped_and_message_layout():
                'd': list(D_RIGHT), 'k': list(K_RIGHT.ravel()), 'r': list(R.ravel()),
                'p': list(P.ravel())}
     from_message = CameraModel.from_camera_info(message)
-    for other in (again, from_message):
+    # a sensor_msgs/CameraInfo message: lower-case attributes, d an array.array
+    msg = types.SimpleNamespace(width=1280, height=720, distortion_model='',
+                                d=array.array('d', D_RIGHT), k=K_RIGHT.ravel(),
+                                r=R.ravel(), p=P.ravel())
+    from_object = CameraModel.from_camera_info(msg)
+    assert from_object.distortion_model == 'plumb_bob'
+    for other in (again, from_message, from_object):
         for key in ('K', 'D', 'R', 'P'):
             np.testing.assert_array_equal(getattr(other, key), getattr(camera, key))
         assert (other.width, other.height) == SIZE

@@ -9,6 +9,7 @@ Mounting: the optical axis is turned from the left-wall normal (+y of ``base_lin
 toward the running direction (+x) by the placement angle (paper eq. 16, 49°) and tilted
 down by ``pitch_deg``.
 """
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,8 +132,8 @@ class StereoRig:
 DISTORTION_MODELS = {'plumb_bob': 5, 'rational_polynomial': 8}
 
 #: Most fixed-point iterations of the undistortion of one point. OpenCV's default is 5,
-#: which leaves 0.2 px at the corners of a 3.9 mm M12 lens (k1 ≈ −0.3); the iteration
-#: stops earlier once a point is converged (:data:`UNDISTORT_EPS_PX`).
+#: which leaves a few tenths of a pixel at the corners of a 3.9 mm M12 lens (k1 ≈ −0.3);
+#: the iteration stops earlier once a point is converged (:data:`UNDISTORT_EPS_PX`).
 UNDISTORT_MAX_ITERATIONS = 100
 #: Stop a point's undistortion once re-distorting it lands within this distance of the
 #: raw pixel, px.
@@ -277,21 +278,28 @@ class CameraModel:
 
     @classmethod
     def from_camera_info(cls, info):
-        """From a CameraInfo-like mapping.
+        """From a CameraInfo-like mapping or a sensor_msgs/CameraInfo message.
 
-        Accepts the keys of :meth:`to_camera_info` (``K``, ``D``, ``R``, ``P``) and the
-        lower-case field names of the ROS 2 message (``k``, ``d``, ``r``, ``p``), with
-        matrices flat (row-major, as in the message) or shaped. ``binning`` and ``roi``
-        are not modelled.
+        A mapping may use the keys of :meth:`to_camera_info` (``K``, ``D``, ``R``, ``P``)
+        or the message's lower-case field names (``k``, ``d``, ``r``, ``p``); a message
+        (any object with those attributes) is read by attribute. Matrices flat (row-major,
+        as in the message) or shaped; an empty ``distortion_model`` is plumb_bob.
+        ``binning`` and ``roi`` are not modelled.
         """
         def get(name):
             for key in (name, name.lower()):
-                if key in info:
-                    return info[key]
+                if isinstance(info, Mapping):
+                    if key in info:
+                        return info[key]
+                elif hasattr(info, key):
+                    return getattr(info, key)
             raise CameraModelError(name, 'missing')
+        try:
+            model = get('distortion_model')
+        except CameraModelError:
+            model = ''
         return cls(width=get('width'), height=get('height'), K=get('K'), D=get('D'),
-                   R=get('R'), P=get('P'),
-                   distortion_model=info.get('distortion_model') or 'plumb_bob')
+                   R=get('R'), P=get('P'), distortion_model=model or 'plumb_bob')
 
     def to_camera_info(self):
         """CameraInfo contents: ``width``, ``height``, ``distortion_model``, ``D`` (n,),
