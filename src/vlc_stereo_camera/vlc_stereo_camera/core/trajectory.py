@@ -50,6 +50,10 @@ track irregularity I_k is a random-phase spectral sum over wavelengths λ_j — 
 the central limit theorem, smooth, and a function of chainage, so a standing train sees
 a constant offset. Phases come from the seed. With the defaults the heading (yaw)
 disturbance stays within −5.0…+7.5° (paper §4.2.2).
+
+Any object with the same ``evaluate(t_s, s_m, v_mps, a_mps2) -> (q, q̇, q̈)`` can take
+the vibration's place: :class:`~vlc_stereo_camera.core.car_body.CarBody` is the car body
+of a metro car on its suspension, driven by a standard track irregularity.
 """
 from dataclasses import dataclass, field
 
