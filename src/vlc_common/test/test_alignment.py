@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
-from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
+from vlc_common.core.alignment import (
+    DEMO_DESIGN_SPEED_MPS,
+    NAMED_ALIGNMENTS,
+    NAMED_TRACK_PROFILES,
+    Alignment,
+    design_cant_m,
+)
 from vlc_common.core.lamp_map import (
     LampMap,
     alignment_lamp_map,
@@ -148,7 +154,9 @@ def test_curved_lamps_follow_the_wall(demo):
         s, lateral = demo.project([lamp.position_m[0]], [lamp.position_m[1]])
         assert s[0] == pytest.approx(lamp.chainage_m, abs=1e-8)
         assert lateral[0] == pytest.approx(2.5, abs=1e-8)
-        assert lamp.position_m[2] == 1.4
+        # 1.4 m above the rail level of its chainage: the wall follows the grade.
+        assert lamp.position_m[2] == pytest.approx(
+            1.4 + demo.evaluate(lamp.chainage_m).elevation_m[0], abs=1e-12)
         # Disc normal horizontal, facing the track: opposite the left normal there.
         n = demo.evaluate(lamp.chainage_m).left_normal[0]
         np.testing.assert_allclose(lamp.normal, [-n[0], -n[1], 0.0], atol=1e-12)
@@ -178,3 +186,109 @@ def test_lamp_map_paths_per_alignment():
     assert default_lamp_map_path('curved_demo').endswith('lamp_map_curved_demo.yaml')
     assert resolve_lamp_map_path('') == default_lamp_map_path()
     assert resolve_lamp_map_path('', 'curved_demo') == default_lamp_map_path('curved_demo')
+
+
+# --- vertical profile and cant ----------------------------------------------------------
+
+def test_named_curved_demo_keeps_its_horizontal_geometry_to_the_bit(demo):
+    """Adding cant and grade leaves x, y, ψ, κ of curved_demo exactly as they were."""
+    level = Alignment(NAMED_ALIGNMENTS['curved_demo'], name='curved_demo')
+    s = np.linspace(-100.0, 2400.0, 25001)
+    a, b = demo.evaluate(s), level.evaluate(s)
+    for name in ('x_m', 'y_m', 'heading_rad', 'curvature_1pm', 'curvature_rate_1pm2'):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert level.is_level and not demo.is_level and Alignment.straight().is_level
+    for name in ('elevation_m', 'grade', 'grade_rate_1pm', 'cant_m', 'cant_rad'):
+        np.testing.assert_array_equal(getattr(b, name), 0.0)
+    np.testing.assert_array_equal(level.to_map(s, 2.5, 1.4)[:, 2], 1.4)
+
+
+def test_vertical_profile_grades_and_vertical_curves(demo):
+    """Grades between the PVIs; parabolic vertical curves of length R·|Δg| centred on the
+    PVIs with z'' = Δg/L; z, G, G' continuous and each the derivative of the previous
+    (numerical differentiation); straight grade lines beyond the ends.
+    """
+    s = np.arange(-200.0, 2600.0, 0.01)
+    p = demo.evaluate(s)
+    pvis = NAMED_TRACK_PROFILES['curved_demo']['vertical_profile']
+    grades = [(b[1] - a[1]) / (b[0] - a[0]) for a, b in zip(pvis, pvis[1:])]
+    np.testing.assert_allclose(grades, [-0.003, -0.028, 0.004, 0.025, 0.003], atol=1e-12)
+    np.testing.assert_allclose(np.gradient(p.elevation_m, s)[1:-1], p.grade[1:-1], atol=1e-6)
+    np.testing.assert_allclose(np.gradient(p.grade, s)[1:-1], p.grade_rate_1pm[1:-1],
+                               atol=2e-4 / 2)                 # steps at the curve ends
+    assert np.max(np.abs(np.diff(p.elevation_m))) < 0.03 * 0.01 * 1.001
+    assert np.max(np.abs(np.diff(p.grade))) < 0.01 / 5000.0 * 1.001   # no grade jumps
+    for (s_pvi, _, radius), g0, g1 in zip(pvis[1:-1], grades, grades[1:]):
+        half = 0.5 * radius * abs(g1 - g0)
+        inside = (s > s_pvi - half + 0.01) & (s < s_pvi + half - 0.01)
+        np.testing.assert_allclose(p.grade_rate_1pm[inside], (g1 - g0) / (2 * half),
+                                   rtol=1e-12)
+        assert np.all(p.grade_rate_1pm[(s > s_pvi + half + 0.01) & (s < s_pvi + half + 20)]
+                      == 0.0)
+        # Tangent points on the grade lines through the PVI.
+        z_pvi = demo.evaluate(s_pvi).elevation_m[0] - (g1 - g0) * half / 4.0
+        assert z_pvi == pytest.approx([z for c, z, _ in pvis if c == s_pvi][0], abs=1e-9)
+    beyond = demo.evaluate([-100.0, 2500.0])
+    assert beyond.elevation_m == pytest.approx([0.3, -4.12 + 0.003 * 190.0])
+    assert 20.0 < -p.elevation_m.min() < 22.0
+
+
+def test_cant_follows_the_design_rule_and_ramps_with_curvature(demo):
+    """Cant = 11.8·V²/R − 61 mm at 80 km/h, capped at 120 mm, rounded up to 5 mm (GB 50157
+    metro rule, written out independently here); constant on the arcs, proportional to
+    curvature along the transitions, banked toward the centre, and its angle's
+    derivatives match numerical differentiation.
+    """
+    def rule_mm(radius_m):
+        cant = 11.8 * 80.0 ** 2 / radius_m - 61.0
+        return min(120.0, 5.0 * np.ceil(cant / 5.0 - 1e-9))
+
+    assert [rule_mm(r) for r in (400.0, 600.0, 800.0, 300.0)] == [120.0, 65.0, 35.0, 120.0]
+    for radius in (300.0, 400.0, 600.0, 800.0, 2000.0, 5000.0):
+        assert design_cant_m(radius, DEMO_DESIGN_SPEED_MPS) * 1000.0 == pytest.approx(
+            max(rule_mm(radius), 0.0), abs=5.0 + 1e-9)
+    assert design_cant_m(-400.0, DEMO_DESIGN_SPEED_MPS) == pytest.approx(0.12)
+    assert design_cant_m(5000.0, DEMO_DESIGN_SPEED_MPS) == 0.0
+    s = np.arange(-50.0, 2400.0, 0.01)
+    p = demo.evaluate(s)
+    for chainage, radius, cant in ((380.0, 400.0, 0.12), (1010.0, -600.0, -0.065),
+                                   (1510.0, 800.0, 0.035), (1890.0, -300.0, -0.12)):
+        q = demo.evaluate(chainage)
+        assert q.curvature_1pm[0] == pytest.approx(1.0 / radius)
+        assert q.cant_m[0] == pytest.approx(cant, abs=1e-15)
+        assert q.cant_rad[0] == pytest.approx(-np.arcsin(cant / 1.5), abs=1e-15)
+    # Transitions: cant/κ constant (linear ramps of both), zero on the straights.
+    ramp = (s > 200.5) & (s < 279.5)
+    np.testing.assert_allclose(p.cant_m[ramp] / p.curvature_1pm[ramp], 0.12 * 400.0,
+                               rtol=1e-9)
+    assert np.all(p.cant_m[np.abs(p.curvature_1pm) == 0.0] == 0.0)
+    assert np.all(np.sign(p.cant_m) == np.sign(p.curvature_1pm))
+    assert np.max(np.abs(np.diff(p.cant_m))) <= 0.12 / 70.0 * 0.01 * 1.0001   # no jumps
+    np.testing.assert_allclose(np.gradient(p.cant_rad, s)[1:-1], p.cant_rate_radpm[1:-1],
+                               atol=0.12 / 70 / 1.5 * 1.01 / 2)   # steps at ramp ends
+    np.testing.assert_allclose(np.gradient(p.cant_rate_radpm, s)[ramp],
+                               p.cant_rate2_radpm2[ramp], rtol=1e-5)
+    assert np.all(p.cant_rate2_radpm2[ramp] < 0.0) and p.cant_rate2_radpm2[ramp].min() < -5e-8
+    d = p.cant_m / 1.5
+    ramp_rate = np.gradient(p.cant_m, s) / 1.5
+    np.testing.assert_allclose(p.cant_rate2_radpm2[ramp],
+                               -d[ramp] * ramp_rate[ramp] ** 2 / (1 - d[ramp] ** 2) ** 1.5,
+                               rtol=1e-6)
+
+
+@pytest.mark.parametrize('kwargs, words', [
+    (dict(cant_m=[0.0, 0.1, 0.1, 0.0]), 'one per element'),
+    (dict(cant_m=[0.0, 0.1, 0.1, 0.05, 0.0]), 'back to straight must end at cant 0'),
+    (dict(cant_m=[0.1, 0.1, 0.1, 0.0, 0.0]), 'straight has no cant'),
+    (dict(cant_m=[0.0, 0.1, 0.12, 0.0, 0.0]), 'cant jumps'),
+    (dict(cant_m=[0.0, 1.6, 1.6, 0.0, 0.0]), 'rail centre distance'),
+    (dict(vertical_profile=[(0.0, 0.0, 0.0)]), 'at least two'),
+    (dict(vertical_profile=[(0.0, 0.0), (100.0, 1.0), (50.0, 0.0)]), 'increasing'),
+    (dict(vertical_profile=[(0.0, 0.0), (100.0, 1.0, 0.0), (200.0, 0.0)]), 'radius > 0'),
+    (dict(vertical_profile=[(0.0, 0.0), (100.0, 3.0, 20000.0), (200.0, 0.0)]), 'overlaps'),
+])
+def test_invalid_cant_and_vertical_profiles_are_rejected(kwargs, words):
+    elements = [('straight', 100.0), ('clothoid', 50.0, 500.0), ('arc', 50.0, 500.0),
+                ('clothoid', 50.0, float('inf')), ('straight', 100.0)]
+    with pytest.raises(ValueError, match=words):
+        Alignment(elements, **kwargs)

@@ -1,11 +1,22 @@
 """The track the localizer's one unknown, the chainage, lives on.
 
-``base_link`` rides at a known lateral and vertical offset from the centreline of a
-horizontal alignment (``vlc_common.core.alignment``: straights, clothoids,
-circular curves). The filter estimates the chainage ``s``; everything in ``map`` follows
-from the alignment: the nominal position ``P(s)``, the running direction ``t(s)`` and the
-left normal ``n(s)``. On the default straight alignment ``P(s) = (s, y0, z0)`` and
-``t = e_x`` exactly (a fast path: the fix evaluates the track in its inner loop).
+``base_link`` rides at a known lateral and vertical offset from the centreline of an
+alignment (``vlc_common.core.alignment``: straights, clothoids, circular curves, and
+optionally a vertical profile and cant). The filter estimates the chainage ``s``;
+everything in ``map`` follows from the alignment: the nominal position ``P(s)`` at the
+alignment's elevation z(s), the running direction ``t(s)`` and the left normal ``n(s)``.
+On the default straight alignment ``P(s) = (s, y0, z0)`` and ``t = e_x`` exactly (a fast
+path: the fix evaluates the track in its inner loop).
+
+``t`` and ``n`` are horizontal: chainage is plan distance (railway practice), so the
+along-track component of a map vector is its projection on the plan tangent, which is
+what :meth:`chainage_of` inverts; the grade's vertical rate ``dz/ds`` is not part of
+``t``. The cant is not needed here: it rolls ``base_link`` about the centreline at rail
+level, where ``base_link`` sits with the default offsets (0, 0), so it changes the
+attitude — which the IMU (``imu/data``) reports — and not the position. With non-zero
+offsets the offsets stay along the horizontal normal and the vertical, as before; on a
+canted curve the true ``base_link`` would then be rotated by the cant φ about the
+centreline (a shift of about z0·φ across, y0·φ up).
 """
 import math
 
@@ -44,8 +55,8 @@ class Track:
 
     @staticmethod
     def _is_map_x(alignment):
-        """True when the alignment is the line s = x (the fast path applies)."""
-        if not alignment.is_straight:
+        """True when the alignment is the level line s = x (the fast path applies)."""
+        if not alignment.is_straight or not alignment.is_level:
             return False
         p = alignment.evaluate(np.array([0.0, 1.0]))
         return bool(np.allclose(p.x_m, [0.0, 1.0], atol=1e-12)
@@ -64,7 +75,7 @@ class Track:
         c, s = math.cos(p.heading_rad[0]), math.sin(p.heading_rad[0])
         t = np.array([c, s, 0.0])
         n = np.array([-s, c, 0.0])
-        return np.array([p.x_m[0], p.y_m[0], 0.0]) + y0 * n + z0 * _E_Z, t, n
+        return np.array([p.x_m[0], p.y_m[0], p.elevation_m[0]]) + y0 * n + z0 * _E_Z, t, n
 
     def position(self, chainage_m):
         """Nominal ``base_link`` position (3,) in map at a chainage."""

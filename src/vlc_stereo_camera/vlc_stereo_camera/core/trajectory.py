@@ -17,10 +17,26 @@ up). Differentiating with Ω = ψ̇·ẑ, ψ̇ = κ·v, Ω̇ = (κ'·v² + κ·a
     p̈ = a·t + κ·v²·n + Ω̇ × Rw + Ω × (Ω × Rw) + 2·Ω × Rẇ + R·ẅ
 
 (t, n: track tangent and left normal), so the IMU sees the track's yaw rate κ·v and the
-centripetal acceleration κ·v² toward the curve's centre. The track is level and has no
-cant (superelevation): the centripetal acceleration appears in full on the platform's
-y axis, and the roll is the vibration roll only. On the default straight every added
-term is an exact zero, so the samples equal the straight-track model's to the bit.
+centripetal acceleration κ·v² toward the curve's centre. On a level alignment without
+cant the centripetal acceleration appears in full on the platform's y axis, and the roll
+is the vibration roll only. On the default straight every added term is an exact zero,
+so the samples equal the straight-track model's to the bit.
+
+Vertical profile and cant (alignments that are not :attr:`Alignment.is_level`): the
+track frame is R_T(s) = Rz(ψ)·Ry(θ)·Rx(φ) with the grade pitch θ = −atan(dz/ds) and the
+cant roll φ(s), and the centreline point P(s) = (x, y, z(s)) rises with the elevation::
+
+    p = P(s) + R_T·w,          R_map_base = R_T·Rz(yaw_v)·Ry(pitch_v)·Rx(roll_v)
+    ṗ = v·P' + R_T·(ẇ + ω×w)
+    p̈ = a·P' + v²·P'' + R_T·(ẅ + 2ω×ẇ + ω̇×w + ω×(ω×w))
+
+with ω, ω̇ the track frame's angular rate and acceleration in its own axes, from the
+Euler rates ψ̇ = κ·v, θ̇ = θ'·v, φ̇ = φ'·v (second derivatives ·v² + ·a). The body rate is
+R_vᵀ·ω + ω_v (ω_v: the vibration's own Euler-rate formula below). So ``base_link``'s
+height follows z(s), its pitch includes the grade, its roll includes the cant, and the
+specific force f = Rᵀ·(p̈ − g) carries gravity's components along the grade and across
+the cant (on a canted curve the lateral force is κ·v²·cos φ + g·sin φ, i.e. the cant
+deficiency only).
 
 Vibration model (paper eq. 21: low-frequency sinusoids plus Gaussian track
 irregularity), per axis k of (x, y, z, roll, pitch, yaw)::
@@ -34,13 +50,17 @@ track irregularity I_k is a random-phase spectral sum over wavelengths λ_j — 
 the central limit theorem, smooth, and a function of chainage, so a standing train sees
 a constant offset. Phases come from the seed. With the defaults the heading (yaw)
 disturbance stays within −5.0…+7.5° (paper §4.2.2).
+
+Any object with the same ``evaluate(t_s, s_m, v_mps, a_mps2) -> (q, q̇, q̈)`` can take
+the vibration's place: :class:`~vlc_stereo_camera.core.car_body.CarBody` is the car body
+of a metro car on its suspension, driven by a standard track irregularity.
 """
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from vlc_common.core.alignment import Alignment
-from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
+from vlc_common.core.rotations import matrix_to_quat_xyzw, matrix_to_rpy, rpy_to_matrix
 
 GRAVITY_MPS2 = 9.80665
 AXES = ('x', 'y', 'z', 'roll', 'pitch', 'yaw')
@@ -202,7 +222,9 @@ class TrajectorySample:
 
     ``chainage_m`` is the train's chainage s (without the along-track vibration),
     ``rpy_rad`` the attitude in map (yaw = track heading + vibration yaw),
-    ``track_heading_rad`` ψ(s) and ``track_curvature_1pm`` κ(s) of the alignment there.
+    ``track_heading_rad`` ψ(s) and ``track_curvature_1pm`` κ(s) of the alignment there;
+    ``track_elevation_m`` z(s) (m), ``track_grade`` dz/ds and ``track_cant_rad`` φ(s)
+    (rad, REP-103 roll of the track plane), all zero on a level alignment.
     """
 
     t_s: np.ndarray
@@ -217,6 +239,9 @@ class TrajectorySample:
     specific_force_body_mps2: np.ndarray
     track_heading_rad: np.ndarray = None
     track_curvature_1pm: np.ndarray = None
+    track_elevation_m: np.ndarray = None
+    track_grade: np.ndarray = None
+    track_cant_rad: np.ndarray = None
 
     @property
     def quat_xyzw(self):
@@ -241,6 +266,8 @@ class Trajectory:
         q, qd, qdd = self.vibration.evaluate(t, s, v, a)
         zeros = np.zeros_like(t)
         track = self.alignment.evaluate(s + zeros)
+        if not self.alignment.is_level:
+            return _sample_3d(t, s + zeros, v + zeros, a + zeros, q, qd, qdd, track)
         c, sn = np.cos(track.heading_rad), np.sin(track.heading_rad)
         kappa = track.curvature_1pm
         yaw_rate = kappa * v                                     # ψ̇
@@ -284,4 +311,78 @@ class Trajectory:
                                 angular_velocity_body_rps=omega,
                                 specific_force_body_mps2=f_body,
                                 track_heading_rad=track.heading_rad,
-                                track_curvature_1pm=kappa)
+                                track_curvature_1pm=kappa,
+                                track_elevation_m=track.elevation_m,
+                                track_grade=track.grade, track_cant_rad=track.cant_rad)
+
+
+def _euler_body_rate(roll, pitch, droll, dpitch, dyaw):
+    """Body angular rate (N, 3) of ZYX Euler angles from their rates."""
+    return np.stack([
+        droll - dyaw * np.sin(pitch),
+        dpitch * np.cos(roll) + dyaw * np.sin(roll) * np.cos(pitch),
+        -dpitch * np.sin(roll) + dyaw * np.cos(roll) * np.cos(pitch)], axis=1)
+
+
+def _track_frame_rates(track, v, a):
+    """Track-frame attitude (φ, θ), its body rate ω and rate derivative ω̇, (N, 3) each.
+
+    ZYX Euler angles of R_T = Rz(ψ)·Ry(θ)·Rx(φ) with θ = −atan(G), φ = cant roll; their
+    time derivatives from the chainage derivatives by the chain rule (ṡ = v, s̈ = a).
+    """
+    grade, grade_s = track.grade, track.grade_rate_1pm
+    one_g2 = 1.0 + grade * grade
+    theta = -np.arctan(grade)
+    theta_s = -grade_s / one_g2
+    theta_ss = 2.0 * grade * grade_s * grade_s / (one_g2 * one_g2)   # G'' = 0 piecewise
+    phi, phi_s, phi_ss = track.cant_rad, track.cant_rate_radpm, track.cant_rate2_radpm2
+    psi_s, psi_ss = track.curvature_1pm, track.curvature_rate_1pm2
+    v2 = v * v
+    dphi, dtheta, dpsi = phi_s * v, theta_s * v, psi_s * v
+    ddphi = phi_ss * v2 + phi_s * a
+    ddtheta = theta_ss * v2 + theta_s * a
+    ddpsi = psi_ss * v2 + psi_s * a
+    sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+    omega = _euler_body_rate(phi, theta, dphi, dtheta, dpsi)
+    omega_dot = np.stack([
+        ddphi - ddpsi * st - dpsi * dtheta * ct,
+        ddtheta * cp - dtheta * dphi * sp + ddpsi * sp * ct + dpsi * dphi * cp * ct
+        - dpsi * dtheta * sp * st,
+        -ddtheta * sp - dtheta * dphi * cp + ddpsi * cp * ct - dpsi * dphi * sp * ct
+        - dpsi * dtheta * cp * st], axis=1)
+    return phi, theta, omega, omega_dot
+
+
+def _sample_3d(t, s, v, a, q, qd, qdd, track):
+    """Trajectory sample on an alignment with grade and cant (module docstring)."""
+    phi, theta, omega, omega_dot = _track_frame_rates(track, v, a)
+    psi = track.heading_rad
+    R_T = rpy_to_matrix(phi, theta, psi)
+    c, sn = np.cos(psi), np.sin(psi)
+    kappa = track.curvature_1pm
+    d1 = np.stack([c, sn, track.grade], axis=1)                         # dP/ds
+    d2 = np.stack([-kappa * sn, kappa * c, track.grade_rate_1pm], axis=1)  # d²P/ds²
+    w, wd, wdd = q[:, 0:3], qd[:, 0:3], qdd[:, 0:3]
+    om_w = np.cross(omega, w)
+    rel_v = wd + om_w
+    rel_a = wdd + 2.0 * np.cross(omega, wd) + np.cross(omega_dot, w) + np.cross(omega, om_w)
+    position = np.stack([track.x_m, track.y_m, track.elevation_m], axis=1) \
+        + np.einsum('nij,nj->ni', R_T, w)
+    velocity = v[:, None] * d1 + np.einsum('nij,nj->ni', R_T, rel_v)
+    accel = a[:, None] * d1 + (v * v)[:, None] * d2 + np.einsum('nij,nj->ni', R_T, rel_a)
+    roll_v, pitch_v, yaw_v = q[:, 3], q[:, 4], q[:, 5]
+    R_v = rpy_to_matrix(roll_v, pitch_v, yaw_v)
+    R = R_T @ R_v
+    omega_body = np.einsum('nji,nj->ni', R_v, omega) \
+        + _euler_body_rate(roll_v, pitch_v, qd[:, 3], qd[:, 4], qd[:, 5])
+    gravity = np.array([0.0, 0.0, -GRAVITY_MPS2])
+    f_body = np.einsum('nji,nj->ni', R, accel - gravity)
+    rpy = matrix_to_rpy(R)
+    # Keep the yaw continuous with the track heading (no wrap at ±π).
+    rpy[:, 2] = psi + np.angle(np.exp(1j * (rpy[:, 2] - psi)))
+    return TrajectorySample(t_s=t, chainage_m=s, speed_mps=v, position_m=position,
+                            velocity_mps=velocity, acceleration_mps2=accel, rpy_rad=rpy,
+                            R_map_base=R, angular_velocity_body_rps=omega_body,
+                            specific_force_body_mps2=f_body, track_heading_rad=psi,
+                            track_curvature_1pm=kappa, track_elevation_m=track.elevation_m,
+                            track_grade=track.grade, track_cant_rad=phi)
