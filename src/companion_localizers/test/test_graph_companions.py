@@ -64,11 +64,11 @@ def test_companion_poses_match_ground_truth(launch, ros_env):
     procs = {name: launch(package, name) for package, name in NODES[3:]}
     rig = dict(SCENARIO, realtime_factor=REALTIME_FACTOR)
     procs['adis16488_node'] = launch('vlc_stereo_camera', 'adis16488_node',
-                                     dict(rig, duration_s=DURATION_S + 0.5, follow_clock=True))
+                                     dict(rig, duration_s=DURATION_S + 0.5))
     procs['photodiode_node'] = launch('vlc_stereo_camera', 'photodiode_node', SCENARIO)
     time.sleep(3.0)              # the processing nodes import numpy/OpenCV and subscribe
     camera = launch('vlc_stereo_camera', 'stereo_camera_node',
-                    dict(rig, duration_s=DURATION_S, wait_for_subscribers=2))
+                    dict(rig, clock_tail_s=0.5, duration_s=DURATION_S, wait_for_subscribers=2))
     procs['stereo_camera_node'] = camera
 
     ctx = rclpy.Context()

@@ -36,7 +36,7 @@ def test_installed_nodes_publish_the_attitude_at_the_imu_rate(launch, ros_env):
     compensator = launch('imu_compensator', 'imu_compensator_node')
     imu = launch('vlc_stereo_camera', 'adis16488_node',
                  params=dict(scenario, rate_hz=400.0, realtime_factor=1.0,
-                             wait_for_subscribers=1))
+                             wait_for_subscribers=1, follow_clock=False))
     ctx = Context()
     rclpy.init(context=ctx)
     node = Node('imu_probe', context=ctx)

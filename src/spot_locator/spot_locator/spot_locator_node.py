@@ -33,7 +33,7 @@ nothing between frames. A stamp more than ``backward_reset_s`` older than the ne
 paired one (a looped bag replay, a restarted camera) clears the pairing state with a
 throttled warning, so the replay is processed instead of being dropped as out of order.
 """
-from collections import OrderedDict, deque
+from collections import deque
 from dataclasses import dataclass
 import sys
 import time
@@ -53,8 +53,10 @@ from spot_locator.core.centres import ChordConfig
 from spot_locator.core.detection import DetectConfig
 from spot_locator.core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from spot_locator.core.matching import MatchConfig
+from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import take_pending
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
@@ -215,12 +217,10 @@ class SpotLocatorNode(Node):
         self._located = None
         self._infos = [None, None]
 
-        self._pending = (OrderedDict(), OrderedDict())
-        self._last_stamp_ns = -1
+        self._pairing = StereoPairing(cfg.max_pending_stamps,
+                                      int(round(cfg.backward_reset_s * 1e9)))
         self._speed = (cfg.assumed_speed_mps, -np.inf)
-        self._backward_reset_ns = int(round(cfg.backward_reset_s * 1e9))
-        self._stats = dict(frames=0, pairs=0, bad_image=0, unpaired=0,
-                           out_of_order=0, stamp_resets=0, no_camera_info=0,
+        self._stats = dict(frames=0, pairs=0, bad_image=0, no_camera_info=0,
                            size_mismatch=0, failed=0, unmatched=0, border=0)
         self._proc_ms = deque(maxlen=200)
         self._warnings = ThrottledWarnings(self.get_logger(), _WARN_PERIOD_S)
@@ -235,9 +235,11 @@ class SpotLocatorNode(Node):
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._image_subs = []
         for side, index in (('left', 0), ('right', 1)):
-            self.create_subscription(Image, f'stereo/{side}/image_raw',
-                                     lambda msg, i=index: self._on_image(i, msg), image_qos)
+            self._image_subs.append(self.create_subscription(
+                Image, f'stereo/{side}/image_raw', lambda msg, i=index: self._on_image(i, msg),
+                image_qos))
             self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
                                      lambda msg, i=index: self._on_info(i, msg), latched)
         self.create_subscription(Odometry, 'train/odometry', self._on_odometry, 10)
@@ -277,40 +279,24 @@ class SpotLocatorNode(Node):
             self._warn('odometry', 'train/odometry speed is not finite; ignored')
 
     def _on_image(self, index, msg):
-        stamp = stamp_to_ns(msg.header.stamp)
-        other = 1 - index
-        jump_ns = self._last_stamp_ns - stamp
-        if self._last_stamp_ns >= 0 and jump_ns > self._backward_reset_ns:
-            # time went back (a looped bag, a restarted camera): what waits for a
-            # partner belongs to the old timeline, and the new one starts afresh
-            for side in self._pending:
-                self._stats['unpaired'] += len(side)
-                side.clear()
-            self._last_stamp_ns = -1
-            self._stats['stamp_resets'] += 1
-            self._warn('stamp_reset', f'image stamp jumped back by {jump_ns * 1e-9:.3f} s '
-                       '(more than backward_reset_s); stereo pairing reset')
-        if stamp <= self._last_stamp_ns:
-            self._stats['out_of_order'] += 1
-            self._warn('out_of_order', f'image stamp {stamp} ns is not newer than the last '
-                       'paired stamp; skipped')
+        """Pair by stamp and process the newest complete pair: the images that arrived
+        since (both subscriptions' queues) count, so a node that fell behind skips to the
+        newest pair instead of working through a backlog.
+        """
+        arrivals = [(index, msg)] + [(side, m) for side, sub in enumerate(self._image_subs)
+                                     for m in take_pending(sub)]
+        for side, image in arrivals:
+            event = self._pairing.add(side, stamp_to_ns(image.header.stamp), image)
+            if event == 'reset':
+                self._warn('stamp_reset', 'image stamps jumped back by more than '
+                           'backward_reset_s; stereo pairing reset')
+            elif event == 'out_of_order':
+                self._warn('out_of_order', 'an image stamp is not newer than the last paired '
+                           'stamp; skipped')
+        pair = self._pairing.newest_pair()
+        if pair is None:
             return
-        partner = self._pending[other].pop(stamp, None)
-        if partner is None:
-            pending = self._pending[index]
-            pending[stamp] = msg
-            overflow = len(pending) - self.config.max_pending_stamps
-            for _ in range(max(overflow, 0)):
-                pending.popitem(last=False)
-                self._stats['unpaired'] += 1
-            return
-        # everything older than a completed pair can no longer be paired
-        for side in self._pending:
-            for old in [s for s in side if s < stamp]:
-                del side[old]
-                self._stats['unpaired'] += 1
-        self._last_stamp_ns = stamp
-        left_msg, right_msg = (msg, partner) if index == 0 else (partner, msg)
+        _, left_msg, right_msg = pair
         try:
             self._process(left_msg, right_msg)
         except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node
@@ -358,10 +344,10 @@ class SpotLocatorNode(Node):
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self):
-        stats = dict(self._stats)
+        stats = dict(self._stats, **vars(self._pairing.stats))
         proc = np.array(self._proc_ms)
         skipped = (stats['bad_image'] + stats['size_mismatch'] + stats['out_of_order']
-                   + stats['no_camera_info'])
+                   + stats['no_camera_info'] + stats['superseded'])
         status = DiagnosticStatus(name=f'{self.get_name()}: spots', hardware_id='stereo_camera',
                                   level=DiagnosticStatus.OK, message='locating spots')
         if self._located is None:

@@ -209,7 +209,27 @@ def test_a_stamp_jumping_back_resets_the_pairing_and_the_replay_is_processed(har
     assert stats['stamp_resets'] == '1'
     assert int(stats['out_of_order']) == 2 and stats['frames'] == '4'
     assert stats['unpaired'] == '1'                                  # left 102
-    assert not h.node._pending[0] and not h.node._pending[1]
+    assert not h.node._pairing._pending
+
+
+def test_a_node_that_fell_behind_skips_to_the_newest_pair(harness):
+    """Four pairs waiting at once (the node was busy): only the newest is located, the
+    three older ones are dropped and counted; nothing queues up.
+    """
+    h = harness()
+    h.send_infos()
+    left, right = _scene(seed=5)
+    lf, rf = 'camera_left_optical_frame', 'camera_right_optical_frame'
+    for k in (10, 11, 12, 13):
+        h.pub_img[0].publish(_image(left, k, lf))
+        h.pub_img[1].publish(_image(right, k, rf))
+    time.sleep(0.5)                     # delivered while the node does not spin
+    assert h.spin_until(lambda: h.clouds)
+    h.spin_until(lambda: False, timeout_s=0.3)
+    assert [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in h.clouds] == [
+        EPOCH_NS + 13 * FRAME_NS]
+    stats = h.stats()
+    assert stats['superseded'] == '6' and stats['frames'] == '1'
 
 
 def test_odometry_speed_sets_the_blur_length(harness):

@@ -52,15 +52,23 @@ class PolledSubscription:
         ``info`` the middleware's message info (``source_timestamp``,
         ``received_timestamp``, ns), as a subscription callback taking two arguments gets.
         """
-        sub = self._sub
-        out = []
-        with sub.handle:
-            while limit is None or len(out) < limit:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                if taken is None:
-                    break
-                out.append(taken if with_info else taken[0])
-        return out
+        return take_pending(self._sub, limit, with_info)
+
+
+def take_pending(sub, limit=None, with_info=False):
+    """The messages waiting in subscription ``sub``'s queue, oldest first (at most
+    ``limit``): what its callback would get next. A callback may call it on its own
+    subscription and the other side's to see everything received so far (the executor
+    skips a subscription whose queue it finds empty).
+    """
+    out = []
+    with sub.handle:
+        while limit is None or len(out) < limit:
+            taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            if taken is None:
+                break
+            out.append(taken if with_info else taken[0])
+    return out
 
 
 def _never_called(msg):    # pragma: no cover - the executor never waits on the group

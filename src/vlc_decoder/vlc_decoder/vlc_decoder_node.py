@@ -39,6 +39,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.stereo_pairing import StereoPairing
+from vlc_common.polled import take_pending
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
@@ -181,18 +183,18 @@ class VlcDecoderNode(Node):
             self.get_logger().info(f'warmed up in {(time.perf_counter() - start) * 1e3:.0f} ms')
         self.tracker = LampTracker(self.cfg, lamp_map)
         self.infos = [None, None]
-        self.pending = collections.OrderedDict()   # stamp_ns -> [left msg, right msg]
-        self.last_stamp_ns = None
+        self.pairing = StereoPairing(self.max_pending,
+                                     int(round(self.cfg.stamp_jump_reset_s * 1e9)))
         self.stats = collections.Counter()
         self.proc_ms = collections.deque(maxlen=300)
         self.reported_anomalies = set()
         self._warnings = ThrottledWarnings(self.get_logger(), WARN_THROTTLE_S)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(Image, 'stereo/left/image_raw',
-                                 lambda m: self._on_image(0, m), image_qos)
-        self.create_subscription(Image, 'stereo/right/image_raw',
-                                 lambda m: self._on_image(1, m), image_qos)
+        self._image_subs = [
+            self.create_subscription(Image, f'stereo/{name}/image_raw',
+                                     lambda m, side=side: self._on_image(side, m), image_qos)
+            for side, name in enumerate(('left', 'right'))]
         self.create_subscription(CameraInfo, 'stereo/left/camera_info',
                                  lambda m: self._on_info(0, m), qos_profile_sensor_data)
         self.create_subscription(CameraInfo, 'stereo/right/camera_info',
@@ -223,37 +225,30 @@ class VlcDecoderNode(Node):
         self.infos[side] = msg
 
     def _on_image(self, side, msg):
-        stamp_ns = stamp_to_ns(msg.header.stamp)
-        if self.tracker.stamp_jumped_back(stamp_ns):
-            # a looped bag or a restarted camera: start afresh rather than skip every
-            # frame until the stamps catch up, and never mix fragments across the jump
-            self.stats['resets_stamp_jump'] += 1
-            self._warn('stamp_jump', f'image stamp jumped back '
-                       f'{(self.last_stamp_ns - stamp_ns) * 1e-9:.3f} s: lamp tracks reset')
-            self.tracker.reset()
-            self.pending.clear()
-            self.last_stamp_ns = None
-        if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
-            self.stats['skipped_out_of_order'] += 1
-            self._warn('out_of_order', f'image stamp {stamp_ns} ns is not after the last '
-                       'decoded frame: skipped')
-            return
-        entry = self.pending.setdefault(stamp_ns, [None, None])
-        entry[side] = msg
-        if entry[0] is not None and entry[1] is not None:
-            del self.pending[stamp_ns]
-            self._drop_older_than(stamp_ns)
-            self._process(stamp_ns, entry[0], entry[1])
-        elif len(self.pending) > self.max_pending:
-            old_stamp, _ = self.pending.popitem(last=False)
-            self.stats['skipped_unpaired'] += 1
-            self._warn('unpaired', f'no stereo partner for stamp {old_stamp} ns: dropped')
-
-    def _drop_older_than(self, stamp_ns):
-        for old in [s for s in self.pending if s < stamp_ns]:
-            del self.pending[old]
-            self.stats['skipped_unpaired'] += 1
-            self._warn('unpaired', f'no stereo partner for stamp {old} ns: dropped')
+        """Pair by stamp and decode the newest complete pair: the images that arrived
+        since (both subscriptions' queues) count, so a decoder that fell behind skips to
+        the newest pair instead of working through a backlog.
+        """
+        arrivals = [(side, msg)] + [(s, m) for s, sub in enumerate(self._image_subs)
+                                    for m in take_pending(sub)]
+        unpaired = self.pairing.stats.unpaired
+        for image_side, image in arrivals:
+            event = self.pairing.add(image_side, stamp_to_ns(image.header.stamp), image)
+            if event == 'reset':
+                # a looped bag or a restarted camera: start afresh rather than skip every
+                # frame until the stamps catch up, and never mix fragments across the jump
+                self._warn('stamp_jump', 'image stamps jumped back by more than '
+                           'stamp_jump_reset_s: lamp tracks reset')
+                self.tracker.reset()
+            elif event == 'out_of_order':
+                self._warn('out_of_order', 'an image stamp is not after the last decoded '
+                           'frame: skipped')
+        pair = self.pairing.newest_pair()
+        if self.pairing.stats.unpaired > unpaired:
+            self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '
+                       'stereo partner dropped')
+        if pair is not None:
+            self._process(*pair)
 
     # ------------------------------------------------------------------ decoding
     def _process(self, stamp_ns, left_msg, right_msg):
@@ -278,7 +273,6 @@ class VlcDecoderNode(Node):
         start = time.perf_counter()
         records = self.tracker.process(stamp_ns, left, right)
         self.proc_ms.append((time.perf_counter() - start) * 1e3)
-        self.last_stamp_ns = stamp_ns
         self.stats['frames_decoded'] += 1
         array = conversions.records_to_array(records, self.cfg.row_time_s,
                                              self.cfg.exposure_s)
@@ -297,9 +291,15 @@ class VlcDecoderNode(Node):
         return -float(info.p[3]) / self.min_depth_m        # P[0,3] = -fx·baseline
 
     # ------------------------------------------------------------------ diagnostics
+    def _pairing_counts(self):
+        ps = self.pairing.stats
+        return {'skipped_unpaired': ps.unpaired, 'skipped_out_of_order': ps.out_of_order,
+                'skipped_superseded': ps.superseded, 'resets_stamp_jump': ps.stamp_resets}
+
     def _publish_diagnostics(self):
         tracker = self.tracker
-        skipped = sum(v for k, v in self.stats.items() if k.startswith('skipped'))
+        counts = dict(self.stats, **self._pairing_counts())
+        skipped = sum(v for k, v in counts.items() if k.startswith('skipped'))
         anomalies = sorted(tracker.anomalies)
         level = DiagnosticStatus.OK
         message = 'decoding'
@@ -310,7 +310,7 @@ class VlcDecoderNode(Node):
         elif skipped:
             level = DiagnosticStatus.WARN
             message = f'{skipped} frames skipped (bad input)'
-        values = dict(self.stats)
+        values = dict(counts)
         values.update({
             'tracks_active': len(tracker.tracks),
             'lamps_confirmed': len(tracker.confirmations),

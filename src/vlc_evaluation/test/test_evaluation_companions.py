@@ -157,9 +157,9 @@ def _curved_outage_run(s, monkeypatch):
     err = np.where(dark, 8.0 * frac, 0.01)
     sigma = np.where(dark, np.maximum(4.0 * frac, 0.02), 0.02)
     pose_xyz = alignment.to_map(chainage + err)
-    tan = alignment.evaluate(chainage).tangent
-    cov = np.zeros((truth_t.size, 3, 3))
-    cov[:, :2, :2] = sigma[:, None, None] ** 2 * np.einsum('ni,nj->nij', tan, tan)
+    track = alignment.evaluate(chainage)
+    slope = np.column_stack([track.tangent, track.grade])      # dP/ds: the grade climbs
+    cov = sigma[:, None, None] ** 2 * np.einsum('ni,nj->nij', slope, slope)
     cov += 1e-4 * np.eye(3)
     diag = [{'integrity_state': 'tracking', 'last_pose_chainage_m': '500.0'},
             {'integrity_state': 'degraded', 'last_pose_chainage_m': '1200.0'},

@@ -216,15 +216,15 @@ def graph_health(run):
     lag = _diag_values(run, 'stereo_camera_node', 'lag_behind_realtime_s')
     health = {
         'camera_lag_max_s': max(lag) if lag else 0.0,
-        # images the spot locator could not pair or use (it processes every pair)
+        # images the spot locator could not pair or use, or skipped to catch up
         'spot_skipped': sum(last('spot_locator_node', k) for k in (
-            'bad_image', 'size_mismatch', 'unpaired', 'out_of_order')),
+            'bad_image', 'size_mismatch', 'unpaired', 'out_of_order', 'superseded')),
         'imu_samples_skipped': last('adis16488_node', 'samples_skipped'),
         'compensator_gaps': last('imu_compensator_node', 'gaps'),
         'compensator_dropped': last('imu_compensator_node', 'samples_dropped'),
         'decoder_skipped': sum(last('vlc_decoder', k) for k in (
             'skipped_bad_image', 'skipped_size_mismatch', 'skipped_unpaired',
-            'skipped_out_of_order')),
+            'skipped_out_of_order', 'skipped_superseded')),
         # perception more than the localizer's history behind the IMU: records dropped
         'localizer_records_too_old': last('train_localizer', 'records_too_old'),
     }

@@ -175,17 +175,17 @@ def _start_rig(graph, scenario, camera_subscribers):
            'speed_kmh': float(scenario.speed_kmh),
            'realtime_factor': float(scenario.realtime_factor)}
     rig_files = [graph.config_file('vlc_stereo_camera', 'rig.yaml')]
-    # The IMU holds simulated time until the camera's first /clock tick
-    # (follow_clock) and runs IMU_TAIL_S past the last frame.
+    # The IMU follows the camera's /clock (its default), which runs IMU_TAIL_S past the
+    # last frame.
     graph.start('vlc_stereo_camera', 'adis16488_node',
                 dict(rig, duration_s=float(scenario.duration_s) + IMU_TAIL_S,
-                     follow_clock=True, **scenario.node_params.get('adis16488_node', {})),
+                     **scenario.node_params.get('adis16488_node', {})),
                 rig_files + [graph.config_file('vlc_stereo_camera', 'adis16488_node.yaml')])
     # The camera constructs its renderer meanwhile and then holds simulated time
     # until the decoder, the spot locator (, the recorder) and the probe's gate
     # subscribe to its images.
     graph.start('vlc_stereo_camera', 'stereo_camera_node',
-                dict(rig, duration_s=float(scenario.duration_s),
+                dict(rig, duration_s=float(scenario.duration_s), clock_tail_s=IMU_TAIL_S,
                      wait_for_subscribers=camera_subscribers,
                      **scenario.node_params.get('stereo_camera_node', {})),
                 rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])

@@ -72,6 +72,7 @@ def make_node(ros_env):
     nodes = []
 
     def make(**params):
+        params.setdefault('follow_clock', False)    # self-paced unless a test gives /clock
         node = Adis16488Node(context=ctx, parameter_overrides=[
             Parameter(k, value=v) for k, v in params.items()])
         node.sent, node.diag_sent = [], []
@@ -200,26 +201,23 @@ def test_realtime_pacing_publishes_only_what_is_due(make_node, monkeypatch):
     assert stamps == [EPOCH_NS + n * 2_500_000 for n in range(53)]
 
 
-def test_follow_clock_starts_with_the_cameras_clock(make_node, monkeypatch):
+def test_following_the_clock_publishes_every_sample_it_reached_and_none_beyond(make_node):
     from rosgraph_msgs.msg import Clock
-    wall = [100.0]
-    monkeypatch.setattr(adis16488_node, 'time', types.SimpleNamespace(monotonic=lambda: wall[0]))
     node = make_node(rate_hz=400.0, realtime_factor=1.0, follow_clock=True)
     assert _run(node, 3) == []                       # no /clock yet: simulated time held
-    tick = Clock()
-    tick.clock.sec, tick.clock.nanosec = 1704067200, 125_000_000   # camera at t = 0.125 s
-    node._on_clock(tick)
-    node._on_tick()
-    # t = 0 .. 0.125 s (51 samples) are due at once, the camera being 0.125 s into its
-    # run; one tick publishes at most one 40-sample block
-    assert len(node.sent) == 40
-    wall[0] += 0.0625
-    node._on_tick()
-    assert len(node.sent) == 76                      # t = 0 .. 0.1875 s
-    tick.clock.nanosec = 900_000_000                  # later ticks do not move the start
-    node._on_clock(tick)
-    node._on_tick()
-    assert len(node.sent) == 76
+
+    def tick(t_ns):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(EPOCH_NS + t_ns, 1_000_000_000)
+        node._on_clock(msg)
+        return [imu_arrays(m)[0] - EPOCH_NS for m in node.sent]
+
+    # the camera at t = 0.125 s: samples t = 0 .. 0.125 s (51) at once, none later
+    assert tick(125_000_000) == [n * 2_500_000 for n in range(51)]
+    assert tick(126_000_000)[-1] == 125_000_000      # between two samples: nothing new
+    assert len(tick(900_000_000)) == 361             # a stall of the camera, then a jump
+    assert len(tick(500_000_000)) == 361             # an old tick overtaken: nothing
+    assert _run(node, 5)[-1] is node.sent[-1] and len(node.sent) == 361   # no wall pacing
 
 
 def test_diagnostics_report_the_run(make_node):
@@ -292,7 +290,7 @@ def test_installed_node_rejects_invalid_rate(launch, params, text):
 @pytest.mark.graph
 def test_installed_node_exits_0_after_duration(launch):
     proc = launch('vlc_stereo_camera', 'adis16488_node',
-                  params={'duration_s': 0.5, 'realtime_factor': 0.0})
+                  params={'duration_s': 0.5, 'realtime_factor': 0.0, 'follow_clock': False})
     assert _wait_exit(proc) == 0, launch.output(proc)
     assert 'duration_s reached: 200 samples published' in launch.output(proc)
 
@@ -302,7 +300,8 @@ def test_installed_node_publishes_at_the_configured_rate(launch):
     rate = 250.0
     period_ns = 4_000_000
     proc = launch('vlc_stereo_camera', 'adis16488_node',
-                  params={'rate_hz': rate, 'imu_frame_id': 'imu_test'})
+                  params={'rate_hz': rate, 'imu_frame_id': 'imu_test',
+                          'follow_clock': False})
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node('imu_listener', context=ctx)

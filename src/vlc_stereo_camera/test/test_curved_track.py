@@ -360,6 +360,7 @@ def imu_node(ros_env):
     nodes = []
 
     def make(**params):
+        params.setdefault('follow_clock', False)    # self-paced: no camera /clock here
         node = Adis16488Node(context=ctx, parameter_overrides=[
             Parameter(k, value=val) for k, val in params.items()])
         node.sent = []

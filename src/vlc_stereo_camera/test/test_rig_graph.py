@@ -35,7 +35,7 @@ def test_rig_publishes_stereo_pairs_and_imu_at_configured_rates(launch, ros_env)
     scenario = {'seed': 3, 'motion_profile': 'constant', 'start_chainage_m': 6.0,
                 'speed_kmh': 20.0, 'realtime_factor': 1.0}
     cam = launch('vlc_stereo_camera', 'stereo_camera_node',
-                 params={**scenario, 'noise_bank_size': 2, 'publish_clock': False})
+                 params={**scenario, 'noise_bank_size': 2})
     imu = launch('vlc_stereo_camera', 'adis16488_node', params={**scenario, 'rate_hz': 400.0})
     ctx = Context()
     rclpy.init(context=ctx)

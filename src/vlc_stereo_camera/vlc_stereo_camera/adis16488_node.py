@@ -15,7 +15,11 @@ Publications
     1 Hz (wall clock) status: samples published, simulated time, lag behind the pacing
     target, current bias.
 
-Samples are generated in simulated time and paced to the wall clock by
+Time: with ``follow_clock`` (default) the node publishes, at every ``/clock`` tick of
+``stereo_camera_node``, every sample whose stamp the tick has reached and none beyond: the
+rig has one simulated clock, the camera's, and the IMU never runs ahead of the images,
+slows down and stalls with the camera and catches up in a burst after a stall of its
+own. With ``follow_clock`` false samples are paced to the wall clock by
 ``realtime_factor`` (0 = as fast as possible), a batch per timer tick. With
 ``duration_s`` > 0 the node publishes every sample with t < duration_s and exits 0; with
 ``wait_for_subscribers`` N > 0 simulated time starts only when ``imu/data_raw`` has N
@@ -39,7 +43,7 @@ from sensor_msgs.msg import Imu
 
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.process import run_node, spin_until_finished
-from vlc_common.stamps import epoch_to_ns, ns_to_stamp, sample_stamp_ns
+from vlc_common.stamps import epoch_to_ns, ns_to_stamp, sample_stamp_ns, stamp_to_ns
 from vlc_stereo_camera.core.imu_model import (
     DEG,
     GRAVITY_MPS2,
@@ -76,10 +80,10 @@ NODE_PARAMETERS = (
     ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until imu/data_raw has this '
                                       'many subscribers (0 = start at once).', 0, 100,
                                       integer=True)),
-    ('follow_clock', False, _desc('realtime_factor > 0: start simulated time with the '
-                                  'first /clock message (the camera publishes it) and pace '
-                                  'from that instant, so images and IMU samples of the same '
-                                  'simulated time are published together.')),
+    ('follow_clock', True, _desc('Publish every sample whose stamp the /clock (the '
+                                 "camera's simulated time) has reached, and no other: the "
+                                 'IMU never runs ahead of the camera and slows with it. '
+                                 'false: pace on the wall clock at realtime_factor.')),
     ('imu_frame_id', 'imu_link', _desc('frame_id of the messages (axes of base_link).',
                                        ptype=ParameterType.PARAMETER_STRING)),
     ('noise_enabled', True, _desc('false: publish the true rate and specific force '
@@ -204,10 +208,13 @@ class Adis16488Node(Node):
 
         self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos_profile_sensor_data)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        if cfg.follow_clock and cfg.realtime_factor > 0.0:
-            self._clock_sub = self.create_subscription(Clock, '/clock', self._on_clock, 10)
-        period = cfg.publish_period_s if cfg.realtime_factor > 0.0 else ASAP_PERIOD_S
-        self._timer = self.create_timer(period, self._on_tick)
+        self._clock_ns = None       # newest /clock received (follow_clock)
+        if cfg.follow_clock:
+            self._clock_sub = self.create_subscription(Clock, '/clock', self._on_clock, 100)
+            self._timer = None
+        else:
+            period = cfg.publish_period_s if cfg.realtime_factor > 0.0 else ASAP_PERIOD_S
+            self._timer = self.create_timer(period, self._on_tick)
         self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f'ADIS16488 at {cfg.rate_hz:g} Hz on {self._imu_pub.topic_name}, frame '
@@ -218,6 +225,18 @@ class Adis16488Node(Node):
     def _due_count(self):
         """Samples to publish this tick and the pacing lag in simulated seconds."""
         cfg = self.config
+        if cfg.follow_clock:
+            if self._clock_ns is None:
+                return 0, 0.0
+            # every sample n with epoch + n / rate <= clock
+            due = (self._clock_ns - self._epoch_ns) * cfg.rate_hz // 1_000_000_000 + 1
+            while due > 0 and sample_stamp_ns(self._epoch_ns, due - 1, cfg.rate_hz) \
+                    > self._clock_ns:
+                due -= 1
+            due = int(due)
+            if self._end_index is not None:
+                due = min(due, self._end_index)
+            return max(due - self._next_index, 0), 0.0
         if cfg.realtime_factor == 0.0:
             if (self._next_index == 0 and self._imu_pub.get_subscription_count()
                     < cfg.wait_for_subscribers):
@@ -239,13 +258,15 @@ class Adis16488Node(Node):
         return count, (behind - count) / cfg.rate_hz
 
     def _on_clock(self, msg):
-        """First /clock tick: simulated time t = clock − epoch began t/realtime s ago."""
-        if self._wall_start is not None:
-            return
-        cfg = self.config
-        t_rel_s = (msg.clock.sec * 1_000_000_000 + msg.clock.nanosec - self._epoch_ns) / 1e9
-        self._wall_start = time.monotonic() - max(t_rel_s, 0.0) / cfg.realtime_factor
-        self.get_logger().info(f'following /clock: simulated time {t_rel_s:.3f} s')
+        """A /clock tick: publish every sample up to it (in order, at once)."""
+        clock_ns = stamp_to_ns(msg.clock)
+        if self._clock_ns is None:
+            self.get_logger().info(f'following /clock from simulated time '
+                                   f'{(clock_ns - self._epoch_ns) * 1e-9:.3f} s')
+        elif clock_ns < self._clock_ns:
+            return          # a tick overtaken by a newer one: nothing new is due
+        self._clock_ns = clock_ns
+        self._on_tick()
 
     def _on_tick(self):
         count, self._lag_s = self._due_count()
@@ -260,7 +281,8 @@ class Adis16488Node(Node):
             count -= take
         if self._end_index is not None and self._next_index >= self._end_index \
                 and not self.finished.done():
-            self._timer.cancel()
+            if self._timer is not None:
+                self._timer.cancel()
             self.get_logger().info(f'duration_s reached: {self._published} samples published')
             self.finished.set_result(0)
 

@@ -118,6 +118,9 @@ NODE_PARAMETERS = (
                               'it.', 0.0, 1.0e7)),
     ('publish_clock', True, _desc('Publish /clock (simulated time).')),
     ('clock_rate_hz', 100.0, _desc('/clock publication rate, Hz (simulated).', 1.0, 10000.0)),
+    ('clock_tail_s', 0.0, _desc('With duration_s: /clock runs this much simulated time past '
+                                'the last frame (the IMU, which follows /clock, with it), s.',
+                                0.0, 60.0)),
     ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until both image topics '
                                       'have this many subscribers (0 = start at once).',
                                       0, 100, integer=True)),
@@ -164,6 +167,7 @@ class StereoCameraNodeConfig:
     duration_s: float
     publish_clock: bool
     clock_rate_hz: float
+    clock_tail_s: float
     wait_for_subscribers: int
 
     def renderer_config(self, epoch_s, vehicle):
@@ -310,7 +314,7 @@ class StereoCameraNode(Node):
                     break
             t_frame = frame.t0_s + self._readout_s if frame is not None else np.inf
             t_tick = tick / cfg.clock_rate_hz if self.pub_clock is not None else np.inf
-            if cfg.duration_s > 0.0 and t_tick >= cfg.duration_s:
+            if cfg.duration_s > 0.0 and t_tick >= cfg.duration_s + cfg.clock_tail_s:
                 t_tick = np.inf
             t_next = min(t_frame, t_tick)
             if not np.isfinite(t_next):

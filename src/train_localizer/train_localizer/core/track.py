@@ -89,7 +89,13 @@ class Track:
         return float(s[0])
 
     def covariance(self, chainage_m, along_var, lateral_var, vertical_var):
-        """Map-frame position covariance (3, 3) from along/lateral/vertical variances."""
+        """Map-frame position covariance (3, 3) from along/lateral/vertical variances.
+
+        The along-track variance lies along dP/ds: on a grade G an error of the chainage
+        moves the position G times as much vertically as it moves it along the plan.
+        """
         _, t, n = self.frame(chainage_m)
+        if not self.straight_x and not self.alignment.is_level:
+            t = t + float(self.alignment.evaluate(chainage_m).grade[0]) * _E_Z
         return (along_var * np.outer(t, t) + lateral_var * np.outer(n, n)
                 + vertical_var * np.outer(_E_Z, _E_Z))
