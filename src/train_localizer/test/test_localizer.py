@@ -299,19 +299,6 @@ def test_bad_input_is_skipped_with_warnings_never_raises():
     assert np.max(np.abs(err[:, 0])) < 0.04
 
 
-def test_time_jump_backwards_resets_and_starts_over():
-    traj, events = scenario(40.0, 2.0, seed=11)
-    loc = make()
-    feed(loc, events)
-    assert loc.initialized
-    report = loc.add_imu(ImuSample(EPOCH_NS, [0.0, 0.0, 9.80665], quat_xyzw=[0, 0, 0, 1]))
-    assert [e.code for e in report.events] == ['time_reset']
-    assert not loc.initialized and loc.monitor.counters.time_resets == 1
-    poses, _, _ = feed(loc, events[1:])                # the bag loops: works again
-    err, _, _ = errors_of(poses, traj)
-    assert poses and np.max(np.abs(err[:, 0])) < 0.04
-
-
 def test_without_imu_the_fixes_still_give_a_pose():
     traj, events = scenario(40.0, 2.0, seed=12)
     frames_only = [e for e in events if e[1] == 'frame']

@@ -136,8 +136,22 @@ PARAMETERS = (
                                  'than this, s.', 0.001, 60.0)),
     ('imu_max_gap_s', 0.05, _desc('Longer IMU intervals are gaps (unknown acceleration), s.',
                                   1e-4, 60.0)),
-    ('backward_reset_s', 1.0, _desc('A stamp this much older than the newest resets, s.',
+    ('backward_reset_s', 1.0, _desc('A frame this much older than the newest frame is a '
+                                    'sensor clock that went back, not a late frame, s.',
                                     1e-3, 1e6)),
+    ('imu_backward_s', 0.05, _desc('An IMU sample this much older than the newest is a '
+                                   'sensor clock that went back, s.', 1e-4, 1e6)),
+    ('attitude_plausible_deg', 10.0, _desc('An imu/data attitude more than this off the '
+                                           "track's heading or the vertical is not the "
+                                           "platform's: ignored, deg.", 0.1, 180.0)),
+    ('attitude_distrust_s', 2.0, _desc('After a confirmed lamp showed the imu/data attitude '
+                                       'wrong, it is ignored for this long, s.', 0.01, 600.0)),
+    ('blind_gap_s', 3.0, _desc('No input for longer than this: the position is lost (reset) '
+                               'until a confirmed lamp, s.', 0.01, 1e6)),
+    ('clock_tolerance_s', 0.1, _desc('A gap of both inputs counts as elapsed time when the '
+                                     "node's clock advanced by the gap within this; "
+                                     'otherwise the chainage is widened by the distance run, '
+                                     's.', 1e-3, 60.0)),
     ('max_speed_mps', 40.0, _desc('Highest possible train speed (cold start), m/s.',
                                   0.1, 200.0)),
     ('init_lookback_s', 0.5, _desc('Unconfirmed observations kept for the cold start, s.',
@@ -194,6 +208,7 @@ class TrainLocalizerNode(Node):
                                                             p['use_camera_info'])
         self._published = 0
         self._last_pose = None
+        self._state = None
 
         estimate_qos = 10
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -285,6 +300,10 @@ class TrainLocalizerNode(Node):
             publish_rate_hz=p['publish_rate_hz'], publish_on_fix=p['publish_on_fix'],
             history_s=p['history_s'], imu_timeout_s=p['imu_timeout_s'],
             imu_max_gap_s=p['imu_max_gap_s'], backward_reset_s=p['backward_reset_s'],
+            imu_backward_s=p['imu_backward_s'], blind_gap_s=p['blind_gap_s'],
+            clock_tolerance_s=p['clock_tolerance_s'],
+            attitude_plausible_rad=p['attitude_plausible_deg'] * _DEG,
+            attitude_distrust_s=p['attitude_distrust_s'],
             attitude_sigma_floor_rad=tuple(v * _DEG for v in p['attitude_sigma_floor_deg']),
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(float(v) for v in mount.imu.position_m),
@@ -296,8 +315,10 @@ class TrainLocalizerNode(Node):
             max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'])
 
     # ------------------------------------------------------------------ inputs
-    def _on_imu(self, msg):
-        report = self.localizer.add_imu(conversions.imu_from_msg(msg))
+    def _on_imu(self, msg, received_ns=None):
+        if received_ns is None:
+            received_ns = self.get_clock().now().nanoseconds
+        report = self.localizer.add_imu(conversions.imu_from_msg(msg), received_ns)
         self._publish(report)
 
     def _drain(self):
@@ -307,8 +328,11 @@ class TrainLocalizerNode(Node):
             if infos:
                 self._on_camera_info(index, infos[-1])
         if self._imu_polled is not None:
-            for msg in self._imu_polled.take_all():
-                self._on_imu(msg)
+            msgs = self._imu_polled.take_all()
+            if msgs:
+                received_ns = self.get_clock().now().nanoseconds
+                for msg in msgs:
+                    self._on_imu(msg, received_ns)
 
     def _on_poll(self):
         self._drain()
@@ -409,6 +433,19 @@ class TrainLocalizerNode(Node):
             self._log_event(event)
         for aid in report.attitude_aids:
             self.pub_aid.publish(conversions.attitude_aid_message(aid, map_frame))
+        if report.poses or report.fixes or report.events:
+            self._check_state()
+
+    def _check_state(self):
+        """Diagnostics at once when the integrity state changes (not only periodically),
+        so a consumer and the evaluation see the sensor time of every transition.
+        """
+        state = self.localizer.status()[0]
+        if state != self._state:
+            previous, self._state = self._state, state
+            if previous is not None:
+                self.get_logger().info(f'integrity {previous.value} -> {state.value}')
+            self._publish_diagnostics()
 
     def _record_latency(self, report, now_ns):
         used = [f.measurement_ns for f in report.fixes if f.status in ('accepted', 'initialised',
@@ -451,8 +488,12 @@ class TrainLocalizerNode(Node):
             'bad_observations': c.bad_observations,
             'reinitialisations': c.reinitialisations,
             'time_resets': c.time_resets,
+            'stamps_dropped': self.localizer.time_base.counters.dropped,
+            'sensor_stamp_ns': self.localizer.newest_ns or 0,
             'imu_rejected': c.imu_rejected,
             'records_too_old': c.records_too_old,
+            'imu_attitude_implausible': c.imu_attitude_implausible,
+            'fixes_attitude_fallback': c.fixes_attitude_fallback,
             'frames_joined': j.joined,
             'frames_without_uids': j.spots_without_lamps,
             'lamp_records_unmatched': j.unmatched_lamp_records,

@@ -19,7 +19,7 @@ import sys
 import time
 
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
-from vlc_evaluation import ablations, companions, report, scenarios
+from vlc_evaluation import ablations, companions, faults, report, scenarios
 from vlc_evaluation.graph_runner import SPAWN_MODES
 from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
 
@@ -28,8 +28,9 @@ def _progress(done, total, name, started):
     """A one-line progress bar on stderr (``started``: time.monotonic() at the start)."""
     elapsed = time.monotonic() - started
     width = 30
+    total = max(total, done, 1)
     filled = int(width * done / total)
-    eta = elapsed / done * (total - done)
+    eta = elapsed / max(done, 1) * (total - done)
     sys.stderr.write(f'\r[{"#" * filled}{"." * (width - filled)}] {done}/{total} '
                      f'{name:<28} {elapsed:5.0f} s elapsed, ~{eta:4.0f} s left')
     if done == total:
@@ -145,6 +146,14 @@ def main(argv=None):
                              'OUT/latency_bags), then replay each at real-time factor 1 '
                              'through the processing nodes, one at a time, after everything '
                              'else (the rig\'s renderer is not on the cores)')
+    parser.add_argument('--faults', action='store_true',
+                        help='also run the fault protocol (evaluation/faults.py: CPU overload, '
+                             'dropouts, stalls, killed nodes, clock steps, malformed input), '
+                             'one fault per run, alone on the machine, after everything else')
+    parser.add_argument('--fault-names', nargs='+', default=[],
+                        help='faults: only these rows (names in faults.FAULTS)')
+    parser.add_argument('--fault-speed', type=float, default=faults.FAULT_SPEED_KMH,
+                        help='faults: train speed, km/h')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -183,7 +192,9 @@ def main(argv=None):
         groups.update(ablations.ablation_groups(
             trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
             realtime_factor=args.realtime_factor))
-    total = sum(len(g) for g in groups.values())
+    fault_scenarios = (faults.fault_scenarios(args.fault_speed, names=args.fault_names)
+                       if args.faults else [])
+    total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
 
     def progress(done, _, name):
@@ -207,6 +218,12 @@ def main(argv=None):
             if latency_results and not args.rescore:
                 report.append_latency_run(out, command, report.latency_table(latency_results)[1],
                                           protocols_s if results else 0.0)
+        fault_results = []
+        if args.faults:
+            # alone on the machine too: the faults bring their own load
+            fault_results = scenarios.run_protocols(
+                {'faults': fault_scenarios}, out, lamp_map, lanes=1, spawn=args.spawn,
+                progress=progress, rescore=args.rescore, retries=0)['faults']
     except KeyboardInterrupt:
         print('\ninterrupted: the running scenarios were stopped', file=sys.stderr)
         sys.stderr.flush()
@@ -233,6 +250,8 @@ def main(argv=None):
         for path in args.companions_docs:
             companions.update_docs(path, added, command)
             print(f'{path}: companions section rewritten')
+    if fault_results:
+        text += faults.append_to_report(out, fault_results, args.fault_speed)
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
     wall = time.monotonic() - started

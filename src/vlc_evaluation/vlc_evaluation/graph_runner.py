@@ -225,16 +225,22 @@ class GraphRun:
         self.spawner = spawner
         self.procs = {}
         self._logs = {}
+        self._started = {}      # name: the arguments it was started with (restart)
+        self.restarts = {}      # name: how often it was started again
 
     def config_file(self, package, name):
         return self.install / 'share' / package / 'config' / name
 
-    def start(self, package, executable, params=None, params_files=(), name=None, nice=0):
+    def start(self, package, executable, params=None, params_files=(), name=None, nice=0,
+              log_name=None):
         """Start ``install/lib/<package>/<executable>``; returns its process handle.
 
         ``nice`` > 0 lowers the process's CPU priority (set in the child before it
-        starts a thread, so its DDS threads inherit it).
+        starts a thread, so its DDS threads inherit it); ``log_name``: its log file's
+        name (default ``name``).
         """
+        name = name or executable
+        self._started[name] = (package, executable, params, tuple(params_files), nice)
         exe = self.install / 'lib' / package / executable
         if not exe.exists():
             raise FileNotFoundError(f'{exe} is not installed (run `make setup`)')
@@ -243,8 +249,7 @@ class GraphRun:
             argv += ['--params-file', str(params_file)]
         for key, value in (params or {}).items():
             argv += ['-p', f'{key}:={param_text(value)}']
-        name = name or executable
-        log_path = self.log_dir / f'{name}.log'
+        log_path = self.log_dir / f'{log_name or name}.log'
         if self.spawner is not None and self.spawner.can_fork(executable):
             env = dict(self.env, **({NICE_ENV: str(int(nice))} if nice else {}))
             proc = self.spawner.start(exe, executable, argv, env, log_path)
@@ -256,6 +261,31 @@ class GraphRun:
             self._logs[name] = log
         self.procs[name] = proc
         return proc
+
+    def signal(self, name, sig):
+        """Send ``sig`` to a node's process group (SIGSTOP/SIGCONT: a stall)."""
+        self._signal(name, sig)
+
+    def kill(self, name, timeout_s=10.0):
+        """SIGKILL a node (no clean stop: a crash); returns its exit code."""
+        self._signal(name, signal.SIGKILL)
+        try:
+            self.procs[name].wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return None
+        log = self._logs.pop(name, None)
+        if log is not None:
+            log.close()
+        return self.procs[name].returncode
+
+    def restart(self, name):
+        """Start a node again with the arguments it was first started with (its log:
+        ``<name>.restart<k>.log``); returns the new process handle.
+        """
+        package, executable, params, files, nice = self._started[name]
+        self.restarts[name] = self.restarts.get(name, 0) + 1
+        return self.start(package, executable, params, files, name=name, nice=nice,
+                          log_name=f'{name}.restart{self.restarts[name]}')
 
     def _signal(self, name, sig):
         pid = self.procs[name].pid

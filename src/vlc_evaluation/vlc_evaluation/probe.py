@@ -52,6 +52,7 @@ class GraphProbe:
         self._pose_stamp_ns = None
         self._pose_count = 0
         self._pose_wall = None
+        self._clock_ns = None
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(PoseStamped, '/train/pose', self._on_pose, reliable)
         self.node.create_subscription(Clock, '/clock', self._on_clock, reliable)
@@ -94,9 +95,19 @@ class GraphProbe:
             if self._pose_stamp_ns is None or stamp > self._pose_stamp_ns:
                 self._pose_stamp_ns = stamp
 
-    def _on_clock(self, _msg):
+    def _on_clock(self, msg):
+        stamp = stamp_to_ns(msg.clock)
+        with self._lock:
+            if self._clock_ns is None or stamp > self._clock_ns:
+                self._clock_ns = stamp
         if not self._clock_seen.is_set():
             self._clock_seen.set()
+
+    @property
+    def clock_ns(self):
+        """The newest ``/clock`` received (ns), or None."""
+        with self._lock:
+            return self._clock_ns
 
     # ------------------------------------------------------------- checks
     def missing_subscribers(self, required):

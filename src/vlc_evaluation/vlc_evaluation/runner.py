@@ -51,7 +51,7 @@ EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYE
 # Extra processing nodes a scenario may add (Scenario.extra_nodes: the companion methods
 # and the rig's photodiode), preloaded in the fork server too.
 EXTRA_EXECUTABLES = ['photodiode_node', 'rssi_localizer_node', 'dead_reckoning_node',
-                     'ins_beacon_node', 'curvature_node']
+                     'ins_beacon_node', 'curvature_node', 'fault_injector_node']
 # What a replay plays from a sensor bag (the processing nodes' inputs and the truth)
 REPLAYED_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
                    '/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data_raw',
@@ -288,13 +288,26 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                     f'{graph.running("stereo_camera_node")})')
             probe.close_gate()
             mark('sim_started')
+            driver = None
+            if scenario.kind == 'fault':
+                from vlc_evaluation import faults
+                fault = faults.fault_of(scenario)
+                driver = faults.FaultDriver(fault, graph, probe, lane.epoch_s,
+                                            out_dir / f'{scenario.name}.{faults.FAULT_FILE}',
+                                            lane.abort.is_set)
+                driver.start()
             limit = 30.0 + 3.0 * scenario.duration_s / pace
+            if driver is not None:
+                limit += 60.0      # the overloaded runs are slower than real time
             code = graph.wait('stereo_camera_node', limit, abort=lane.abort.is_set)
             if code != 0:
                 timing['problems'].append(f'stereo_camera_node exit {code} '
                                           f'(limit {limit:.0f} s)')
             mark('camera_done')
             end_ns = round((lane.epoch_s + scenario.duration_s) * 1e9)
+            if driver is not None:
+                timing['problems'] += driver.finish()['problems']
+                end_ns += round(faults.stamp_shift_s(fault) * 1e9)
             def inputs_done():
                 return not graph.running('adis16488_node')
 
@@ -315,6 +328,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
     if lane.abort.is_set():
         raise RunAborted(scenario.name)
     timing['cpu_s'] = read_cpu_seconds(graph.log_dir)
+    timing['exit_codes'] = codes
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:
         timing['problems'].append(f'exit codes {bad}')

@@ -251,6 +251,12 @@ def score_scenario(bag, scenario, lamp_map):
     """Score one recorded scenario bag (static or dynamic protocol, or a
     :mod:`.companions` kind).
     """
+    if scenario.kind == 'fault':
+        from vlc_evaluation import faults
+        from vlc_evaluation.runner import rig_epoch_s
+        result = faults.score_fault(bag, scenario, rig_epoch_s())
+        result['scenario'] = asdict(scenario)
+        return result
     run = bag_eval.load_run(bag)
     if scenario.kind:
         from vlc_evaluation import companions

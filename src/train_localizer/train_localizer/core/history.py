@@ -37,8 +37,9 @@ class StepHistory:
     Each step ``i`` holds ``t[i]`` (ns), ``a[i]`` = (acceleration input m/s² over the
     interval ending there, extra bias noise intensity) or :data:`NO_INPUT`, ``x[i]`` the
     FilterState after its updates (None before initialisation), ``gyro[i]`` the angular
-    rate in ``base_link`` (rad/s) and ``upd[i]`` its updates: ``('z', H, z, r)`` or
-    ``('set', FilterState)``.
+    rate in ``base_link`` (rad/s) and ``upd[i]`` its updates: ``('z', H, z, r)``,
+    ``('set', FilterState)`` or ``('doubt', gap_s)`` (the chainage variance widened by
+    the distance the train runs in ``gap_s`` at the state's speed).
     """
 
     def __init__(self, kalman, history_s):
@@ -143,6 +144,12 @@ class StepHistory:
     def apply_update(state, upd):
         if upd[0] == 'set':
             return upd[1].copy()
+        if upd[0] == 'doubt':
+            # the stamps advanced by gap_s with nothing to show that time did: the
+            # chainage may be off by as far as the train runs in that time
+            out = state.copy()
+            out.P[0, 0] += (abs(float(state.x[1])) * upd[1]) ** 2
+            return out
         _, h, z, r = upd
         return update(state, z, r, h)
 

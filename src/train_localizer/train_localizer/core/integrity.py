@@ -17,7 +17,14 @@ Rules:
   their uncertainty: a wrong position, re-initialised at once) or they have kept
   contradicting it for ``reinit_after_s`` (a wrong speed too: the chainage is
   re-initialised and the speed and bias uncertainties are reset). One lamp alone never
-  moves the state, so a single spoofed or moved lamp cannot capture the position.
+  moves the state, so a single spoofed or moved lamp cannot capture the position;
+* but it is evidence: until a confirmed lamp agrees with the state again (or the state
+  is re-initialised), the published chainage variance includes the largest offset by
+  which a confirmed lamp contradicted it (:meth:`IntegrityMonitor.suspicion_var_m2`),
+  so a pose that may be that far off is never published as if it were right;
+* a state the localizer can no longer vouch for at all (its sensor clock restarted, or
+  no input for longer than ``blind_gap_s``) is *lost*: no pose until a confirmed lamp
+  initialises it again.
 """
 from collections import deque
 from dataclasses import dataclass
@@ -31,6 +38,7 @@ class IntegrityState(enum.Enum):
     """What the localizer can currently vouch for."""
 
     WAITING_FOR_UID = 'waiting_for_uid'   # no prior and no confirmed UID: no pose published
+    LOST = 'lost'                         # state dropped (time base changed): no pose
     PRIOR_ONLY = 'prior_only'             # started from a prior, no fix accepted yet
     TRACKING = 'tracking'                 # fixes accepted within coast_warn_s
     COASTING = 'coasting'                 # no accepted fix for coast_warn_s: IMU only
@@ -120,6 +128,8 @@ class IntegrityCounters:
     time_resets: int = 0
     imu_rejected: int = 0
     records_too_old: int = 0      # lamp records older than the history window (late inputs)
+    imu_attitude_implausible: int = 0   # imu/data attitudes the platform cannot have
+    fixes_attitude_fallback: int = 0    # fixes that agreed only without the imu/data attitude
 
 
 def mahalanobis2(innovation_m, variance_m2):
@@ -215,14 +225,25 @@ class IntegrityMonitor:
             return 'full'
         return None
 
+    def suspicion_var_m2(self):
+        """Square of the largest offset by which a confirmed lamp contradicted the state
+        since a confirmed lamp last agreed with it (0 when none did), m².
+        """
+        offsets = [c.offset_m for c in self._contradictions if math.isfinite(c.offset_m)]
+        return max(offsets, key=abs) ** 2 if offsets else 0.0
+
     def on_reinitialised(self):
         self.counters.reinitialisations += 1
         self._contradictions.clear()
 
-    def status(self, now_ns, initialized, has_fix, sigma_m):
+    def status(self, now_ns, initialized, has_fix, sigma_m, lost_reason=None):
         """Integrity state, severity and a one-line message at sensor time ``now_ns``."""
         cfg = self.config
         if not initialized:
+            if lost_reason:
+                return (IntegrityState.LOST, Level.ERROR,
+                        f'position lost: {lost_reason}; no pose published until a '
+                        'confirmed lamp UID')
             return (IntegrityState.WAITING_FOR_UID, Level.WARN,
                     'no pose published: waiting for a confirmed lamp UID')
         if sigma_m > cfg.max_sigma_m:

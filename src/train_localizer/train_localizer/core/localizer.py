@@ -22,6 +22,7 @@ Time handling (all stamps integer ns of the sensor clock):
   a looped bag) resets everything; a smaller step back is out of order and skipped.
 """
 import bisect
+import dataclasses
 from dataclasses import dataclass, field
 import math
 
@@ -57,6 +58,15 @@ from train_localizer.core.reports import (
     StepReport,
 )
 from train_localizer.core.standstill import StandstillConfig, StandstillDetector
+from train_localizer.core.time_base import (
+    FRAME,
+    HELD,
+    IMU,
+    OUT_OF_ORDER,
+    RESET,
+    TimeBaseConfig,
+    TimeBaseMonitor,
+)
 from vlc_common.core.observation import NS_PER_S
 from vlc_common.core.rotations import matrix_to_quat_xyzw, quat_to_matrix
 
@@ -92,12 +102,28 @@ class LocalizerConfig:
     imu_max_gap_s : float
         A longer IMU interval is a gap: its acceleration is treated as unknown, s.
     backward_reset_s : float
-        A stamp older than the newest by more than this resets the localizer, s.
+        A frame older than the newest frame by more than this is not a late frame but a
+        sensor clock that went back (:mod:`train_localizer.core.time_base`), s.
+    imu_backward_s : float
+        An IMU sample older than the newest by more than this is a clock that went back, s.
+    blind_gap_s : float
+        Nothing received for longer than this: what happened meanwhile cannot be vouched
+        for, the localizer resets (position lost until a confirmed lamp), s.
+    clock_tolerance_s : float
+        A gap of both inputs counts as time that passed when the graph's clock advanced
+        by the gap within this; otherwise the chainage is widened by the distance run, s.
     attitude_sigma_floor_rad : tuple of 3 floats
         Smallest attitude 1σ about map x, y, z assumed for ``imu/data`` (also used when
         it carries no covariance), rad.
     attitude_sigma_unknown_rad : tuple of 3 floats
         Attitude 1σ when no attitude is used (the platform vibration's span), rad.
+    attitude_plausible_rad : float
+        An ``imu/data`` attitude whose heading differs from the track's, or whose tilt
+        from the vertical, by more than this is not the platform's (it rides on the
+        track): it is ignored as if the sample had none, rad.
+    attitude_distrust_s : float
+        After a confirmed lamp whose range and direction disagree with the ``imu/data``
+        attitude but agree without it, that attitude is ignored for this long, s.
     attitude_aiding_period_s : float
         Shortest interval between two heading aids (the heading an accepted lamp shows,
         for the compensator's ``attitude_aiding``), s; 0 = none.
@@ -133,8 +159,13 @@ class LocalizerConfig:
     imu_timeout_s: float = 0.2
     imu_max_gap_s: float = 0.05
     backward_reset_s: float = 1.0
+    imu_backward_s: float = 0.05
+    blind_gap_s: float = 3.0
+    clock_tolerance_s: float = 0.1
     attitude_sigma_floor_rad: tuple = (0.05 * _DEG, 0.05 * _DEG, 0.1 * _DEG)
     attitude_sigma_unknown_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
+    attitude_plausible_rad: float = 10.0 * _DEG
+    attitude_distrust_s: float = 2.0
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
     attitude_aiding_period_s: float = 0.2
@@ -146,7 +177,9 @@ class LocalizerConfig:
 
     def __post_init__(self):
         for name in ('publish_rate_hz', 'history_s', 'imu_timeout_s', 'imu_max_gap_s',
-                     'backward_reset_s', 'initial_chainage_sigma_m', 'max_speed_mps',
+                     'attitude_plausible_rad', 'attitude_distrust_s',
+                     'backward_reset_s', 'imu_backward_s', 'blind_gap_s', 'clock_tolerance_s',
+                     'initial_chainage_sigma_m', 'max_speed_mps',
                      'init_lookback_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
@@ -182,6 +215,10 @@ class Localizer:
         self._steps = StepHistory(cfg.kalman, cfg.history_s)
         self._gate = PoseGate(cfg.publish_rate_hz, cfg.integrity.max_sigma_m)
         self._cold = ColdStart(cfg.init_lookback_s, cfg.max_speed_mps)
+        self._time = TimeBaseMonitor(TimeBaseConfig(
+            backward_reset_s=cfg.backward_reset_s, imu_backward_s=cfg.imu_backward_s,
+            blind_gap_s=cfg.blind_gap_s))
+        self._lost_reason = None
         self._reset_state()
 
     # ----------------------------------------------------------------- state
@@ -197,7 +234,9 @@ class Localizer:
                                    max_extrapolation_s=cfg.imu_max_gap_s)
         self._standstill = StandstillDetector(cfg.standstill)
         self._last_zupt_ns = None
+        self._time.reset_streams()
         self._newest_imu_ns = None
+        self._imu_received_ns = None
         self._newest_frame_ns = None
         self._first_frame_ns = None
         self._prev_gyro = None
@@ -206,11 +245,18 @@ class Localizer:
         self._has_fix = False
         self._systematic_var = cfg.fix.lamp_position_sigma_m ** 2
         self._last_aid_ns = None
+        self._distrust_until_ns = None
         self.monitor.clear()
 
     def reset(self):
         """Forget everything but the counters (as at start)."""
         self._reset_state()
+        self._lost_reason = None
+
+    @property
+    def time_base(self):
+        """The :class:`~train_localizer.core.time_base.TimeBaseMonitor` (its counters)."""
+        return self._time
 
     @property
     def initialized(self):
@@ -257,34 +303,66 @@ class Localizer:
     def status(self):
         """(IntegrityState, Level, message, published chainage 1σ in m or NaN)."""
         state = self.current_state()
-        sigma = (math.sqrt(state.P[0, 0] + self._systematic_var) if state is not None
+        sigma = (math.sqrt(state.P[0, 0] + self._extra_var()) if state is not None
                  else float('nan'))
         if not self.config.use_kalman:
             sigma = 0.0
         st, level, msg = self.monitor.status(self.newest_ns, self._initialized,
-                                             self._has_fix, sigma)
+                                             self._has_fix, sigma, self._lost_reason)
+        suspicion = self.monitor.suspicion_var_m2()
+        if suspicion > 0.0 and self._initialized:
+            msg += (f'; a confirmed lamp contradicts the state by {math.sqrt(suspicion):.2f} m: '
+                    'covariance widened until one agrees')
         return st, level, msg, sigma
 
+    def _extra_var(self):
+        """Published chainage variance beyond the filter's: the last fix's systematic part
+        and the contradiction of a confirmed lamp not yet resolved, m².
+        """
+        return self._systematic_var + self.monitor.suspicion_var_m2()
+
     # ----------------------------------------------------------------- IMU
-    def add_imu(self, sample):
-        """Add one ``imu/data`` sample; returns a :class:`StepReport`."""
+    def add_imu(self, sample, received_ns=None):
+        """Add one ``imu/data`` sample; returns a :class:`StepReport`.
+
+        ``received_ns``: the graph's clock when the sample was taken (ns; None or 0 when
+        unknown). It tells a gap of both inputs in which time passed from a sensor clock
+        that stepped forward (see :meth:`_bridge_gap`).
+        """
         report = StepReport()
-        cfg = self.config
-        t = int(sample.stamp_ns)
         if not sample.is_finite():
             self.monitor.counters.imu_rejected += 1
             report.events.append(Event(Level.WARN, 'imu_nonfinite',
                                        'IMU sample with NaN/inf or zero quaternion skipped'))
             return report
-        if self._newest_imu_ns is not None and t <= self._newest_imu_ns:
-            if self._newest_imu_ns - t > cfg.backward_reset_s * NS_PER_S:
-                self._time_reset(report, t, self._newest_imu_ns)
-            else:
-                self.monitor.counters.imu_rejected += 1
-                report.events.append(Event(Level.WARN, 'imu_out_of_order',
-                                           f'IMU sample {(self._newest_imu_ns - t) * 1e-6:.3f} '
-                                           'ms older than the newest skipped'))
-                return report
+        verdict = self._time.check(IMU, sample.stamp_ns, (sample, received_ns))
+        if verdict == RESET:
+            self._time_reset(report, IMU)
+            for _, (held, held_received) in self._time.take_held(IMU):
+                self._time.check(IMU, held.stamp_ns)
+                self._use_imu(held, held_received, report)
+        elif verdict == HELD:
+            self._held_event(report)
+        elif verdict == OUT_OF_ORDER:
+            self.monitor.counters.imu_rejected += 1
+            behind_ms = (self._newest_imu_ns - sample.stamp_ns) * 1e-6
+            report.events.append(Event(Level.WARN, 'imu_out_of_order',
+                                       f'IMU sample {behind_ms:.3f} ms older than the newest '
+                                       'skipped'))
+        else:
+            self._use_imu(sample, received_ns, report)
+        return report
+
+    def _held_event(self, report):
+        report.events.append(Event(Level.WARN, 'time_candidate',
+                                   f'{self._time.last_reason}: held until more inputs confirm '
+                                   'a new time base (a lone one is dropped)'))
+
+    def _use_imu(self, sample, received_ns, report):
+        cfg = self.config
+        t = int(sample.stamp_ns)
+        if sample.quat_xyzw is not None and not self._attitude_usable(sample, report):
+            sample = dataclasses.replace(sample, quat_xyzw=None, attitude_cov_rad2=None)
         if sample.quat_xyzw is not None:
             self._att.push(t * 1e-9, sample.quat_xyzw, sample.attitude_cov_rad2)
         accel = self._along_track_accel(sample)
@@ -298,7 +376,9 @@ class Localizer:
         a_in = NO_INPUT if (gap or first) else (0.5 * (self._last_accel + accel),
                                                 self._tilt_leak_q(sample))
         self._last_accel = accel
+        previous_ns, previous_received = self._newest_imu_ns, self._imu_received_ns
         self._newest_imu_ns = t
+        self._imu_received_ns = received_ns if received_ns else None
         if self._steps.t and t <= self._steps.t[-1]:
             # Fixes were extrapolated past this sample while the IMU lagged: put it where
             # it belongs and replay the later steps.
@@ -306,12 +386,73 @@ class Localizer:
             self._gate.start_grid(t)
         else:
             self._append_step(t, a_in, sample.gyro_rps)
+            if gap:
+                self._bridge_gap(t, previous_ns, previous_received, report)
         standing = self._standstill.push(t, sample.gyro_rps, sample.accel_mps2)
         if standing and cfg.standstill.enabled:
             self._zero_velocity(t)
         self._process_pending(report)
         self._emit(report)
-        return report
+
+    def _attitude_usable(self, sample, report):
+        """False for an ``imu/data`` attitude the platform cannot have (heading or tilt
+        more than ``attitude_plausible_rad`` off the track), or while a confirmed lamp
+        showed it wrong (``attitude_distrust_s``): the sample is then used as one
+        without attitude (the track's, with ``attitude_sigma_unknown_rad``).
+        """
+        cfg = self.config
+        t = sample.stamp_ns
+        if self._distrust_until_ns is not None and t <= self._distrust_until_ns:
+            return False
+        R = quat_to_matrix(sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw))
+        heading = 0.0
+        if self._steps.newest_state is not None or cfg.fix.track.straight_x:
+            # (on a curve the track's heading is known once the chainage is)
+            _, tangent, normal = self._track_frame()
+            heading = math.atan2(float(R[:, 0] @ normal), float(R[:, 0] @ tangent))
+        tilt = math.acos(min(1.0, max(-1.0, float(R[2, 2]))))
+        if max(abs(heading), tilt) <= cfg.attitude_plausible_rad:
+            return True
+        self.monitor.counters.imu_attitude_implausible += 1
+        report.events.append(Event(Level.WARN, 'attitude_implausible',
+                                   f'imu/data attitude {math.degrees(heading):+.1f} deg off the '
+                                   f'track heading, tilted {math.degrees(tilt):.1f} deg: not the '
+                                   'platform\'s; used without attitude'))
+        return False
+
+    def _track_frame(self, chainage_m=None):
+        """(point, tangent, left normal) of the track at ``chainage_m`` (default: the
+        newest estimate; the start of the track before there is one).
+        """
+        if chainage_m is None:
+            state = self._steps.x[-1] if self._steps.x else None
+            chainage_m = float(state.x[0]) if state is not None else 0.0
+        return self.config.fix.track.frame(chainage_m)
+
+    def _bridge_gap(self, t, previous_ns, previous_received, report):
+        """An IMU gap from ``previous_ns`` to ``t`` in which no frame came either.
+
+        A stalled process and a sensor clock stepped forward look the same in the
+        stamps: in the second the train did not run the distance the state's speed
+        says. Unless the graph's clock shows that the time passed (it advanced by the
+        gap within ``clock_tolerance_s``), the chainage is widened by that distance.
+        """
+        cfg = self.config
+        if self._newest_frame_ns is not None and self._newest_frame_ns > previous_ns:
+            return
+        gap_ns = t - previous_ns
+        received = self._imu_received_ns
+        if (received is not None and previous_received is not None
+                and received - previous_received >= gap_ns - cfg.clock_tolerance_s * NS_PER_S):
+            return
+        if self._steps.x[-1] is None:
+            return
+        self._steps.add_update(len(self._steps) - 1, ('doubt', gap_ns * 1e-9))
+        # no pose for an instant inside the gap: the widening applies from its end on
+        self._gate.skip_to(t)
+        report.events.append(Event(Level.WARN, 'time_doubt',
+                                   f'no input for {gap_ns * 1e-9:.3f} s and nothing shows that '
+                                   'the time passed: chainage widened by the distance run in it'))
 
     def _along_track_accel(self, sample):
         """Measured along-track acceleration of ``base_link`` (bias included), m/s².
@@ -347,10 +488,7 @@ class Localizer:
 
     def _tangent(self):
         """Running direction (3,) at the newest chainage estimate (curved track)."""
-        state = self._steps.x[-1] if self._steps.x else None
-        if state is None:
-            return self.config.fix.track.frame(0.0)[1]
-        return self.config.fix.track.frame(float(state.x[0]))[1]
+        return self._track_frame()[1]
 
     def _zero_velocity(self, t):
         """Zero-velocity update at the newest step if the filter's speed allows it."""
@@ -392,13 +530,22 @@ class Localizer:
     def add_frame(self, stamp_ns, observations):
         """Add the lamp observations of one stereo frame; returns a :class:`StepReport`."""
         report = StepReport()
-        cfg = self.config
         stamp_ns = int(stamp_ns)
-        if (self._newest_frame_ns is not None
-                and self._newest_frame_ns - stamp_ns > cfg.backward_reset_s * NS_PER_S
-                and (self._newest_imu_ns is None
-                     or self._newest_imu_ns - stamp_ns > cfg.backward_reset_s * NS_PER_S)):
-            self._time_reset(report, stamp_ns, self._newest_frame_ns)
+        verdict = self._time.check(FRAME, stamp_ns, observations)
+        if verdict == HELD:
+            self._held_event(report)
+            return report
+        if verdict == RESET:
+            self._time_reset(report, FRAME)
+            for held_ns, held in self._time.take_held(FRAME):
+                self._time.check(FRAME, held_ns)
+                self._use_frame(held_ns, held, report)
+        else:
+            self._use_frame(stamp_ns, observations, report)
+        return report
+
+    def _use_frame(self, stamp_ns, observations, report):
+        cfg = self.config
         if self._newest_frame_ns is None:
             self._first_frame_ns = stamp_ns
         self._newest_frame_ns = (stamp_ns if self._newest_frame_ns is None
@@ -415,7 +562,6 @@ class Localizer:
             bisect.insort(self._pending, (t_m, self._seq, obs))
         self._process_pending(report)
         self._emit(report)
-        return report
 
     def _imu_absent(self):
         """True when the IMU lags the newest frame by more than ``imu_timeout_s``."""
@@ -472,7 +618,17 @@ class Localizer:
                 else:
                     cov = cov + np.diag(np.maximum(floor - np.diag(cov), 0.0))
                 return quat_to_matrix(q), cov
-        return np.eye(3), np.diag(np.square(cfg.attitude_sigma_unknown_rad))
+        return self._track_attitude(t), np.diag(np.square(cfg.attitude_sigma_unknown_rad))
+
+    def _track_attitude(self, t):
+        """The attitude of a platform aligned with the track at the state's chainage at
+        ``t`` (identity on the straight along map x).
+        """
+        state = self._steps.state_at(t) if self._steps.t else None
+        if state is None and not self.config.fix.track.straight_x:
+            state = self._steps.newest_state
+        _, tangent, normal = self._track_frame(None if state is None else float(state.x[0]))
+        return np.column_stack([tangent, normal, np.cross(tangent, normal)])
 
     # ----------------------------------------------------------------- fixes
     def _fix_for(self, prep, lamp):
@@ -539,6 +695,8 @@ class Localizer:
         else:
             fix, geometry_ok = self._fix_for(prep, lamp)
             if not geometry_ok:
+                fix, geometry_ok = self._fix_without_imu_attitude(prep, lamp, fix, report)
+            if not geometry_ok:
                 self._geometry_rejected(prep, lamp, fix, report)
                 return
             y, S = innovation(state, fix.chainage_m, fix.var_m2)
@@ -583,6 +741,32 @@ class Localizer:
                                                 matrix_to_quat_xyzw(exp_so3(dtheta) @ prep.R),
                                                 cov, fix.chainage_m))
 
+    def _fix_without_imu_attitude(self, prep, lamp, fix, report):
+        """A confirmed lamp's range and direction disagree under the ``imu/data``
+        attitude: the same fix with the track's attitude and ``attitude_sigma_unknown``.
+        When that agrees, the IMU attitude is what was wrong: it is ignored for
+        ``attitude_distrust_s`` and this fix is used (a wrong stereo match disagrees
+        either way). Returns (fix, geometry_ok).
+        """
+        cfg = self.config
+        if not cfg.use_imu_attitude or self._att.at(prep.t_ns * 1e-9) is None:
+            return fix, False
+        R = self._track_attitude(prep.t_ns)
+        cov = np.diag(np.square(cfg.attitude_sigma_unknown_rad))
+        alt = dataclasses.replace(prep, R=R, cov_att=cov)
+        fallback, ok = self._fix_for(alt, lamp)
+        if not ok:
+            return fix, False
+        self.monitor.counters.fixes_attitude_fallback += 1
+        until = prep.t_ns + int(cfg.attitude_distrust_s * NS_PER_S)
+        self._distrust_until_ns = max(self._distrust_until_ns or until, until)
+        report.events.append(Event(Level.WARN, 'attitude_distrusted',
+                                   f'lamp {lamp.uid:#06x}: range and direction disagree under '
+                                   f'the imu/data attitude (chi2 {fix.chi2_geometry:.1f}) and '
+                                   'agree without it: that attitude is ignored for '
+                                   f'{cfg.attitude_distrust_s:.1f} s'))
+        return fallback, True
+
     def _geometry_rejected(self, prep, lamp, fix, report):
         self.monitor.on_geometry_rejected(prep.t_ns, prep.obs.uid, fix.chi2_geometry)
         report.fixes.append(FixRecord(prep.t_ns, prep.obs.uid, lamp.uid, 'rejected_geometry',
@@ -595,7 +779,7 @@ class Localizer:
         """The map lamp an unconfirmed observation must be, or None (with why)."""
         cfg = self.config
         icfg = cfg.integrity
-        if state.P[0, 0] > icfg.association_max_sigma_m ** 2:
+        if state.P[0, 0] + self.monitor.suspicion_var_m2() > icfg.association_max_sigma_m ** 2:
             return None, None, float('nan'), 'state too uncertain to predict the lamp'
         g = cfg.geometry
         lamp_from_base = prep.R @ (g.R_base_cam @ prep.p_cam + g.t_base_cam)
@@ -733,14 +917,14 @@ class Localizer:
         return q, cov
 
     def _published_var(self, t):
-        """Published chainage variance at ``t``: filter plus the last fix's systematic part."""
+        """Published chainage variance at ``t``: the filter's plus :meth:`_extra_var`."""
         state = self._steps.state_at(t)
-        return state.P[0, 0] + self._systematic_var
+        return state.P[0, 0] + self._extra_var()
 
     def _pose(self, t, kind):
         state = self._steps.state_at(t)
         s = float(state.x[0])
-        var = float(state.P[0, 0] + self._systematic_var)
+        var = float(state.P[0, 0] + self._extra_var())
         q, att_cov = self._orientation(t)
         return PoseEstimate(t, self.config.fix.track.position(s), self._position_cov(s, var),
                             float(state.x[1]), float(state.P[1, 1]), q, att_cov,
@@ -754,9 +938,17 @@ class Localizer:
                                       self._published_var):
             report.poses.append(self._pose(t, kind))
 
-    def _time_reset(self, report, t, newest):
+    def _time_reset(self, report, stream):
+        """A new time base confirmed by ``stream``: everything but the counters is reset;
+        a state that was initialised is lost until a confirmed lamp initialises it again.
+        """
         self.monitor.counters.time_resets += 1
-        report.events.append(Event(Level.WARN, 'time_reset',
-                                   f'time jumped back by {(newest - t) * 1e-9:.3f} s: '
-                                   'localizer reset'))
+        was = self._initialized
+        reason = self._time.last_reason
         self._reset_state()
+        if was:
+            self._lost_reason = f'time base changed ({reason})'
+        report.events.append(Event(Level.ERROR, 'time_reset',
+                                   f'the sensor clock restarted ({reason}, confirmed by the '
+                                   f'{stream} stream): localizer reset'
+                                   + ('; position lost until a confirmed lamp' if was else '')))

@@ -39,6 +39,11 @@ class PoseGate:
         if self.next_grid_ns is None:
             self.next_grid_ns = (t_ns // self.period_ns + 1) * self.period_ns
 
+    def skip_to(self, t_ns):
+        """No grid pose before ``t_ns``."""
+        if self.next_grid_ns is not None and self.next_grid_ns < t_ns:
+            self.next_grid_ns = -(-t_ns // self.period_ns) * self.period_ns
+
     def open_at(self, t_ns):
         """Publish from ``t_ns`` on, at once (a configured prior)."""
         self.start_ns = t_ns
