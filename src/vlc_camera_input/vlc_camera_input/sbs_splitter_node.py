@@ -110,6 +110,9 @@ NODE_PARAMETERS = (
     ('row_time_s', 3.0e-5, descriptor('Rolling shutter: delay between the exposure starts '
                                       'of two rows, s (the decoder\'s).', 1e-7, 1e-3)),
     ('exposure_s', 2.5e-5, descriptor('Row exposure, s (the decoder\'s).', 1e-7, 0.033)),
+    ('warm_up', True, _bool('Convert and split one synthetic frame of the calibrated size '
+                            'before subscribing, so first-call costs do not fall on the '
+                            'first real frames.')),
     ('diagnostics_period_s', 1.0, descriptor('Diagnostics period, s (steady clock).',
                                              0.05, 3600.0)),
     ('hardware_id', 'sbs_stereo_camera', _str('hardware_id of the diagnostics status.')),
@@ -165,6 +168,7 @@ class SbsSplitterNode(Node):
                                   p['calibration_alpha'], p['rectify'])
         self.readout_s = sbs.readout_s(self.stereo.camera_size[1], p['row_time_s'],
                                        p['exposure_s'])
+        self.warm_up_ms = self._warm_up() if p['warm_up'] else 0.0
         self.stats = Counter()
         self.split_ms = deque(maxlen=300)
         self.min_interval_s = float('inf')
@@ -190,7 +194,34 @@ class SbsSplitterNode(Node):
             f'splitting {self.resolve_topic_name(topic)} ({p["input"]}) into '
             f'{self.resolve_topic_name("stereo/left/image_raw")} and right; calibration '
             f'{self.stereo.describe()}{"; rectifying" if p["rectify"] else ""}; rows '
-            f'{p["row_time_s"] * 1e6:.1f} us, exposure {p["exposure_s"] * 1e6:.1f} us')
+            f'{p["row_time_s"] * 1e6:.1f} us, exposure {p["exposure_s"] * 1e6:.1f} us; warmed '
+            f'up in {self.warm_up_ms:.0f} ms')
+
+    def _warm_up(self):
+        """Run one synthetic frame of the calibrated size through the conversion, the split,
+        the rectification and the message construction (nothing is published): the first
+        calls into libjpeg, OpenCV's colour conversion and remap, and the first allocation
+        of frame-sized buffers, are slow. Returns the time it took, ms.
+        """
+        start = time.perf_counter()
+        width, height = self.stereo.camera_size
+        rng = np.random.default_rng(0)
+        frame = rng.integers(0, 255, size=(height, 2 * width), dtype=np.uint8)
+        if self.params['input'] == 'compressed':
+            data = cv2.imencode('.jpg', cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR),
+                                [cv2.IMWRITE_JPEG_QUALITY, 95])[1]
+            frame = sbs.decode_compressed(data.tobytes(), 'jpeg')
+        else:
+            frame = conversions.image_to_grey(Image(height=height, width=2 * width,
+                                                    encoding='mono8', step=2 * width,
+                                                    data=frame.tobytes()))
+        halves = sbs.split(frame, self.stereo.camera_size)
+        if self.stereo.rectifiers is not None:
+            halves = [rect(half) for rect, half in zip(self.stereo.rectifiers, halves)]
+        for side in (0, 1):
+            conversions.camera_info_msg(self.stereo.infos[side], Header())
+            conversions.image_msg(halves[side], Header())
+        return (time.perf_counter() - start) * 1e3
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params):
@@ -299,7 +330,7 @@ class SbsSplitterNode(Node):
                   'frame_interval_ms_min': (f'{self.min_interval_s * 1e3:.3f}'
                                             if np.isfinite(self.min_interval_s) else 'nan')}
         self.pub_diag.publish(conversions.diagnostics(
-            self.get_clock().now().to_msg(), 'sbs_splitter: stereo camera input',
+            self.get_clock().now().to_msg(), f'{self.get_name()}: stereo camera input',
             self.params['hardware_id'], level, message, values))
 
 
