@@ -2,7 +2,8 @@
 frame per stereo pair on ``image_raw/compressed``, the calibration as files) replayed
 through the installed nodes — bag_player → sbs_splitter_node → decoder, spot locator,
 IMU compensator, localizer — positions the train as accurately as the split bag replayed
-through the same nodes beside it (two lanes, about 20 s).
+through the same nodes beside it (two lanes; 36 s on the shared 2-core machine under a
+load average of 7).
 
 JPEG is the lossy input (quality 95, image_transport's default); mono8, bgr8 and yuyv
 SBS frames give the split images bit for bit (test_sbs_bag.py), so their replay is the
@@ -23,14 +24,19 @@ BAG = pathlib.Path(__file__).resolve().parents[3] / 'bags' / 'sample_80kmh'
 # identical, differed by 0.02–0.1 mm in max and up to 4.3 mm pose by pose.
 MAX_ERROR_TOLERANCE_M = 0.005
 MEAN_ERROR_TOLERANCE_M = 0.002
+# Requested replay pace; each lane starts at half of it (two graphs on two shared cores).
+# At an effective 0.25 on a loaded machine the lamp hand-over at 0.5 s varied from one
+# replay of identical images to the next (max error 9.7 to 16.9 mm); at 0.125 to 0.2 five
+# replays (split, mono8, yuyv, JPEG twice) gave 9.7 to 10.6 mm.
+REALTIME_FACTOR = 0.25
 
 
 def test_sbs_jpeg_replay_is_as_accurate_as_the_split_replay(ros_env, tmp_path):
     converted = sbs_bag.convert(BAG, tmp_path / 'sample_sbs_jpeg', 'jpeg')
     assert converted['frames'] == 45 and converted['topic'] == '/image_raw/compressed'
-    sbs = sbs_bag.sbs_replay_scenario(tmp_path / 'sample_sbs_jpeg', 0.5)
+    sbs = sbs_bag.sbs_replay_scenario(tmp_path / 'sample_sbs_jpeg', REALTIME_FACTOR)
     assert sbs.extra_nodes[0][:2] == ['vlc_camera_input', 'sbs_splitter_node']
-    groups = {'split': [scenarios.replay_scenario(BAG, 0.5)], 'sbs': [sbs]}
+    groups = {'split': [scenarios.replay_scenario(BAG, REALTIME_FACTOR)], 'sbs': [sbs]}
     lamp_map = LampMap.load(default_lamp_map_path())
     results = scenarios.run_protocols(groups, tmp_path, lamp_map, lanes=2, retries=1)
     [split], [jpeg] = results['split'], results['sbs']

@@ -209,7 +209,7 @@ def sbs_replay_scenario(sbs_bag, realtime_factor=1.0, calibration_form='ros',
                    extra_subscriptions={COMPRESSED_TOPIC if compressed else RAW_TOPIC: 1})
 
 
-def compare(bag, out_dir, encodings=('mono8', 'jpeg'), realtime_factor=0.5, lanes=2,
+def compare(bag, out_dir, encodings=('mono8', 'jpeg'), realtime_factor=0.25, lanes=2,
             jpeg_quality=JPEG_QUALITY, retries=1):
     """Replay the split ``bag`` and its SBS copies through the graph and score them.
 
@@ -337,7 +337,8 @@ def main(argv=None):
                       default=['mono8', 'jpeg'])
     comp.add_argument('--jpeg-quality', type=int, default=JPEG_QUALITY)
     comp.add_argument('--out', default='out/sbs', help='folder for the bags and recordings')
-    comp.add_argument('--realtime-factor', type=float, default=0.5)
+    comp.add_argument('--realtime-factor', type=float, default=0.25,
+                      help='requested replay pace (each of two lanes starts at half of it)')
     comp.add_argument('--lanes', type=int, default=2)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
