@@ -18,6 +18,16 @@ RIG = {'realtime_factor': 0.5, 'speed_kmh': 60.0, 'start_chainage_m': 3.0}
 SHM = pathlib.Path('/dev/shm')
 
 
+def _calibration(tmp_path):
+    """The rig's ideal stereo calibration as camera_info files (for the SBS splitter)."""
+    from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
+    from vlc_common.core.camera import StereoCameraModel, StereoRig
+    pair = StereoCameraModel.from_rig(StereoRig())
+    files = [tmp_path / 'left.yaml', tmp_path / 'right.yaml']
+    save_ros_stereo(StereoCalibration(pair.left, pair.right), *files)
+    return [str(f) for f in files]
+
+
 def _nodes(tmp_path):
     """(package, executable, parameters) of every long-running node of the graph."""
     return [
@@ -35,6 +45,8 @@ def _nodes(tmp_path):
         ('vlc_bags', 'bag_recorder', {'output': str(tmp_path / 'bag'),
                                       'topics': ['imu/data_raw']}),
         ('vlc_bags', 'bag_player', {'bag': str(SAMPLE_BAG), 'loop': True, 'rate': 0.5}),
+        ('vlc_camera_input', 'sbs_splitter_node', {'calibration_files': _calibration(tmp_path)}),
+        ('vlc_view', 'marker_node', {}),
     ]
 
 

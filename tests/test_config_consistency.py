@@ -14,6 +14,7 @@ FILES = {
     'train_localizer_node': SRC / 'train_localizer/config/train_localizer_node.yaml',
     'dead_reckoning_node': SRC / 'companion_localizers/config/dead_reckoning_node.yaml',
     'ins_beacon_node': SRC / 'companion_localizers/config/ins_beacon_node.yaml',
+    'sbs_splitter_node': SRC / 'vlc_camera_input/config/sbs_splitter_node.yaml',
 }
 
 

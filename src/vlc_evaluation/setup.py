@@ -34,6 +34,7 @@ setup(
             'companion_score = vlc_evaluation.companion_scoring:main',
             'render_demo_images = vlc_evaluation.demo_images:main',
             'sample_bag = vlc_evaluation.sample_bag:main',
+            'sbs_bag = vlc_evaluation.sbs_bag:main',
         ],
     },
 )

@@ -51,11 +51,14 @@ EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYE
 # Extra processing nodes a scenario may add (Scenario.extra_nodes: the companion methods
 # and the rig's photodiode), preloaded in the fork server too.
 EXTRA_EXECUTABLES = ['photodiode_node', 'rssi_localizer_node', 'dead_reckoning_node',
-                     'ins_beacon_node', 'curvature_node', 'fault_injector_node']
-# What a replay plays from a sensor bag (the processing nodes' inputs and the truth)
+                     'ins_beacon_node', 'curvature_node', 'sbs_splitter_node',
+                     'fault_injector_node']
+# What a replay plays from a sensor bag (the processing nodes' inputs and the truth; an
+# SBS camera's frames instead of the stereo topics: vlc_evaluation.sbs_bag)
+SBS_TOPICS = ('/image_raw', '/image_raw/compressed')
 REPLAYED_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
                    '/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data_raw',
-                   '/ground_truth/pose', '/ground_truth/spots')
+                   '/ground_truth/pose', '/ground_truth/spots') + SBS_TOPICS
 
 IMU_TAIL_S = 0.1          # IMU samples beyond the last camera frame (poses past it)
 DRAIN_GRACE_S = 0.25      # after the last pose is seen: let the recorder take it too
@@ -149,14 +152,15 @@ PLAYER_CLOCK_HZ = 100.0
 # Images (and their camera_info) exist only once the camera has read out the last row
 # (latency.READOUT_S after the first row's exposure start).
 FRAME_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
-                '/stereo/left/camera_info', '/stereo/right/camera_info')
+                '/stereo/left/camera_info', '/stereo/right/camera_info') + SBS_TOPICS
 
 
-def header_stamped(bag, topic='/stereo/left/image_raw'):
-    """True when the bag's timestamps of ``topic`` are its header stamps (a sensor bag
-    of the rig recorded with ``timestamp_source: header``), False for receive times.
+def header_stamped(bag, topics=('/stereo/left/image_raw',) + SBS_TOPICS):
+    """True when the bag's timestamps of its first frame (``topics``) are its header
+    stamps (a sensor bag of the rig recorded with ``timestamp_source: header``), False for
+    receive times.
     """
-    for _, _, timestamp, data in iter_raw(bag, [topic]):
+    for _, _, timestamp, data in iter_raw(bag, list(topics)):
         return header_stamp_ns(data) == timestamp
     return False
 

@@ -1,0 +1,1 @@
+"""ROS-free algorithm code (numpy/OpenCV only): no rclpy, no message types."""

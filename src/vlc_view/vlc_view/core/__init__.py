@@ -1,0 +1,1 @@
+"""ROS-free scene code (numpy only): no rclpy, no message types."""
