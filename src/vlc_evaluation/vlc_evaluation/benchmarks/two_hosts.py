@@ -574,7 +574,7 @@ def _imu_published(log):
 def summarise(data, topics, sent_per_topic):
     """Sent, received, lost and latency (ms) over ``topics`` of a probe's record."""
     sent = received = duplicates = 0
-    delivery, transport, missing = [], [], {}
+    delivery, transport, missing, rates = [], [], {}, []
     for topic in topics:
         rec = data['topics'].get(topic, {'index': [], 'source_ns': [], 'received_ns': [],
                                          'callback_ns': []})
@@ -586,6 +586,10 @@ def summarise(data, topics, sent_per_topic):
         duplicates += len(index) - len(unique)
         missing[topic] = sorted(set(range(sent_per_topic)) - unique)[:20]
         source = np.asarray(rec['source_ns'], dtype=np.float64)
+        if len(index) > 1 and source.max() > source.min():
+            # messages per second the writer achieved (source stamps of its writes)
+            first, last = np.argmin(index), np.argmax(index)
+            rates.append((index[last] - index[first]) * 1e9 / (source[last] - source[first]))
         delivery += list((np.asarray(rec['callback_ns'], dtype=np.float64) - source) / 1e6)
         transport += list((np.asarray(rec['received_ns'], dtype=np.float64) - source) / 1e6)
 
@@ -597,7 +601,8 @@ def summarise(data, topics, sent_per_topic):
                 'max': float(v.max())}
     return {'sent': sent, 'received': received, 'lost': sent - received,
             'duplicates': duplicates, 'missing_first': missing,
-            'latency_ms': stats(delivery), 'transport_ms': stats(transport)}
+            'latency_ms': stats(delivery), 'transport_ms': stats(transport),
+            'publish_rate_hz': float(min(rates)) if rates else float('nan')}
 
 
 # ----------------------------------------------------------------------------- the probe
@@ -687,10 +692,11 @@ def probe_main(args):
 def _format_row(name, run, res):
     img, imu = res['images'], res['imu']
     if img is None:
-        return f'| {name} | {run} | probe gave no result | | | | | | | | | | |'
+        return f'| {name} | {run} | probe gave no result | | | | | | | | | | | |'
     lat, tr = img['latency_ms'], img['transport_ms']
     outputs = ' / '.join(str(res['outputs'].get(t, 0)) for t in OUTPUT_TOPICS)
-    return (f'| {name} | {run} | {img["sent"]} | {img["received"]} | {img["lost"]} | '
+    return (f'| {name} | {run} | {img["sent"]} | {img["publish_rate_hz"]:.1f} | '
+            f'{img["received"]} | {img["lost"]} | '
             f'{lat["median"]:.1f} | {lat["p99"]:.1f} | {lat["max"]:.1f} | '
             f'{tr["median"]:.1f} / {tr["p99"]:.1f} | '
             f'{imu["received"]}/{imu["sent"]} ({imu["latency_ms"]["p99"]:.1f}) | '
@@ -724,11 +730,12 @@ def benchmark_main(args):
               f'link {args.link}, processing nodes {"on" if args.processing else "off"}')
         for name, (description, _path, _env) in profiles.items():
             print(f'  {name}: {description}')
-        print('\n| profile | run | images sent | received | lost | latency median ms | '
+        print('\n| profile | run | images sent | sent per s per camera | received | lost | '
+              'latency median ms | '
               'p99 ms | max ms | transport median / p99 ms | IMU received/sent (p99 ms) | '
               'packets dropped: sensor qdisc / processing UDP rcvbuf / IP reassembly '
               'fails | load (1 min) | spots/pairs / vlc/lamps msgs |')
-        print('|---|---|---|---|---|---|---|---|---|---|---|---|---|')
+        print('|---|---|---|---|---|---|---|---|---|---|---|---|---|---|')
         totals = {}
         # interleave the profiles run by run: the machine's load drifts over minutes
         for run in range(1, args.runs + 1):
