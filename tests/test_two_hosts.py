@@ -39,7 +39,7 @@ def two_host_link():
 def test_processing_host_receives_every_image_and_the_imu(ros_env, tmp_path, two_host_link):
     result = two_hosts.run_stream(PROFILE, duration_s=DURATION_S, link=two_host_link,
                                   processing=True, log_dir=tmp_path,
-                                  domain_id=int(ros_env['ROS_DOMAIN_ID']))
+                                  domain_id=int(ros_env['ROS_DOMAIN_ID']), startup_timeout_s=30.0)
     print(f'two hosts, link {two_host_link}: images {result["images"]}, IMU '
           f'{result["imu"]}, outputs {result["outputs"]}, counters {result["counters"]}')
     logs = '\n'.join(f'--- {name}\n{text[-1500:]}' for name, text in result['logs'].items())

@@ -28,8 +28,9 @@ Usage::
                        [--profile-file NAME=path.xml ...]
 
 ``profile NAME`` is one of :data:`PROFILES` (generated into a temporary directory),
-``shipped`` (``config/fastdds_two_hosts.xml`` of the workspace, ``$VLC_WS``) or
-``shipped_unicast`` (the same without the image readers' multicast locators). Needs root (or
+``shipped`` (``config/fastdds_two_hosts.xml`` of the workspace, ``$VLC_WS``),
+``shipped_unicast`` (the same without the image readers' multicast locators) or
+``shipped_default_times`` (without the image endpoints' heartbeat/response times). Needs root (or
 CAP_NET_ADMIN/CAP_SYS_ADMIN) for ``ip netns``; prints why and exits 2 without it.
 
 The harness (:class:`TwoHosts`, :func:`run_stream`) is also what
@@ -154,6 +155,14 @@ PROFILES = {
 }
 
 
+#: the shipped profile and variants of it without one element: name -> (element, text)
+SHIPPED_VARIANTS = {
+    'shipped': (None, 'config/fastdds_two_hosts.xml (shipped)'),
+    'shipped_unicast': ('multicastLocatorList', 'the shipped profile without the image '
+                        'readers\' multicast locators (each reader its own unicast copy)'),
+    'shipped_default_times': ('times', 'the shipped profile without the image endpoints\' '
+                              'times (Fast DDS defaults: heartbeat 3 s, responses after 5 ms)'),
+}
 DEFAULT_PROFILES = ('udp_defaults', 'udp_buffers', 'udp_buffers_hb', 'udp_buffers_rt', 'async',
                     'shipped_unicast', 'shipped')
 
@@ -162,18 +171,18 @@ def profile_paths(names, tmpdir, workspace=None, extra=()):
     """``{name: (description, path, env)}`` for the requested profiles."""
     out = {}
     for name in names:
-        if name in ('shipped', 'shipped_unicast'):
+        if name in SHIPPED_VARIANTS:
             path = pathlib.Path(workspace or os.environ.get('VLC_WS', '.')) / SHIPPED_PROFILE
             if not path.exists():
                 raise FileNotFoundError(f'{path} (set VLC_WS or run from the workspace)')
             if name == 'shipped':
                 out[name] = ('config/fastdds_two_hosts.xml (shipped)', path, {})
                 continue
-            unicast = pathlib.Path(tmpdir) / f'{name}.xml'
-            unicast.write_text(re.sub(r'\s*<multicastLocatorList>.*?</multicastLocatorList>',
-                                      '', path.read_text(), flags=re.S))
-            out[name] = ('the shipped profile without the image readers\' multicast '
-                         'locators (each reader its own unicast copy)', unicast, {})
+            element, description = SHIPPED_VARIANTS[name]
+            variant = pathlib.Path(tmpdir) / f'{name}.xml'
+            variant.write_text(re.sub(rf'\s*<{element}>.*?</{element}>', '', path.read_text(),
+                                      flags=re.S))
+            out[name] = (description, variant, {})
             continue
         description, xml, env = PROFILES[name]
         path = pathlib.Path(tmpdir) / f'{name}.xml'
@@ -212,6 +221,19 @@ def netns_unavailable():
     return None
 
 
+def remove_stale_namespaces():
+    """Delete the namespaces of harness runs whose process is gone (killed mid-run)."""
+    listing = _ip('netns', 'list', check=False).stdout
+    for name in re.findall(r'^(vlc2h-(?:sensor|proc)-(\d+)x\d+)', listing, flags=re.M):
+        ns, pid = name[0], int(name[1])
+        if pathlib.Path(f'/proc/{pid}').exists():
+            continue
+        for orphan in _ip('netns', 'pids', ns, check=False).stdout.split():
+            with contextlib.suppress(ProcessLookupError, ValueError):
+                os.kill(int(orphan), signal.SIGKILL)
+        _ip('netns', 'del', ns, check=False)
+
+
 def shaping_unavailable(rate='1gbit'):
     """Why a veth cannot be shaped with a tbf qdisc here (``None`` if it can)."""
     name = f'vlc2h-tbf-{os.getpid()}'
@@ -241,7 +263,7 @@ class TwoHosts:
     _serial = itertools.count()
 
     def __init__(self, link='none', log_dir=None):
-        tag = f'{os.getpid() % 100000}x{next(self._serial)}'
+        tag = f'{os.getpid()}x{next(self._serial)}'
         self.ns = {SENSOR: f'vlc2h-sensor-{tag}', PROCESSING: f'vlc2h-proc-{tag}'}
         # interface names are at most 15 characters
         self.ifname = {SENSOR: f'v2hs{tag}'[:15], PROCESSING: f'v2hp{tag}'[:15]}
@@ -265,6 +287,7 @@ class TwoHosts:
         self.close()
 
     def _setup(self):
+        remove_stale_namespaces()
         for host in (SENSOR, PROCESSING):
             _ip('netns', 'add', self.ns[host])
             self._created.append(self.ns[host])
@@ -515,7 +538,8 @@ def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_
                                      *(['--outputs'] if processing else [])],
                         env, 'probe_images'),
             hosts.start(PROCESSING, [*module, '--role', 'imu', '--out', out['imu'],
-                                     '--expect', expect_imu, '--timeout', timeout],
+                                     '--expect', expect_imu, '--timeout', timeout,
+                                     '--idle', 3.0],
                         env, 'probe_imu')]
         image_subscribers = 1
         if processing:
@@ -552,6 +576,7 @@ def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_
             for role, path in out.items()}
     imu_sent = _imu_published(logs.get('adis16488_node', '')) or expect_imu
     images = data['images']
+    probe_end = {role: d.get('end') if d else None for role, d in data.items()}
     return {
         'images': summarise(images, IMAGE_TOPICS, expect) if images else None,
         'imu': summarise(data['imu'], (IMU_TOPIC,), imu_sent) if data['imu'] else None,
@@ -559,7 +584,7 @@ def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_
                     for t in OUTPUT_TOPICS} if images else {},
         'exit_codes': exit_codes, 'shm': shm, 'counters': counters, 'link': link_text,
         'sysctl': buffers, 'log_dir': str(hosts.log_dir), 'logs': logs,
-        'domain_id': domain_id, 'load': os.getloadavg()[0],
+        'domain_id': domain_id, 'load': os.getloadavg()[0], 'probe_end': probe_end,
     }
 
 
@@ -622,15 +647,19 @@ def probe_main(args):
     rclpy.init(args=[])
     node = rclpy.create_node(f'two_host_probe_{args.role}', start_parameter_services=False,
                              enable_rosout=False)
-    records = {}
+    records, seen = {}, {}
+    last_ns = [None]
 
     def recorder(topic, rate_hz):
         rec = records[topic] = {'index': [], 'source_ns': [], 'received_ns': [],
                                 'callback_ns': []}
+        distinct = seen[topic] = set()
 
         def callback(raw, info):
-            now = time.time_ns()
-            rec['index'].append(_stamp_index(raw, rate_hz) if rate_hz else len(rec['index']))
+            now = last_ns[0] = time.time_ns()
+            index = _stamp_index(raw, rate_hz) if rate_hz else len(rec['index'])
+            distinct.add(index)
+            rec['index'].append(index)
             rec['source_ns'].append(info['source_timestamp'])
             rec['received_ns'].append(info['received_timestamp'])
             rec['callback_ns'].append(now)
@@ -665,23 +694,25 @@ def probe_main(args):
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     complete_at = None
+    end = 'timeout'
     try:
         while rclpy.ok() and time.monotonic() - start < args.timeout:
             executor.spin_once(timeout_sec=0.1)
-            if complete_at is None and all(
-                    len(set(records[t]['index'])) >= args.expect for t in counted):
+            if complete_at is None and all(len(seen[t]) >= args.expect for t in counted):
                 complete_at = time.monotonic()
             if complete_at is not None and time.monotonic() - complete_at > args.linger:
+                end = 'complete'
                 break
-            last = max((r['callback_ns'][-1] for r in records.values() if r['callback_ns']),
-                       default=None)
-            if last is not None and time.time_ns() - last > args.idle * 1e9:
+            if last_ns[0] is not None and time.time_ns() - last_ns[0] > args.idle * 1e9:
+                end = 'idle'
                 break
+        else:
+            end = 'shutdown' if not rclpy.ok() else end
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        end = 'interrupted'
     finally:
         result = {'topics': records, 'wall_s': time.monotonic() - start,
-                  'discovered_s': discovered_s}
+                  'discovered_s': discovered_s, 'end': end}
         pathlib.Path(args.out).write_text(json.dumps(result))
         with contextlib.suppress(Exception):
             node.destroy_node()
@@ -722,7 +753,7 @@ def benchmark_main(args):
             return 2
     names = [n for n in args.profiles.split(',') if n]
     if names == ['all']:
-        names = [*PROFILES, 'shipped_unicast', 'shipped']
+        names = [*PROFILES, *SHIPPED_VARIANTS]
     with tempfile.TemporaryDirectory(prefix='two_host_profiles_') as tmp:
         profiles = profile_paths(names, tmp, extra=args.profile_file)
         print(f'two_host_benchmark: {args.runs} run(s) of {args.duration:g} s per profile, '
@@ -745,6 +776,10 @@ def benchmark_main(args):
                 print(_format_row(name, run, res), flush=True)
                 if res['shm']:
                     print(f'  !! shared memory mapped: {res["shm"]}')
+                if res['images'] and res['images']['lost']:
+                    print(f'  lost frames (first 20 per camera): '
+                          f'{res["images"]["missing_first"]}; image probe ended: '
+                          f'{res["probe_end"]["images"]}; exit codes {res["exit_codes"]}')
                 totals.setdefault(name, []).append(res)
                 if not args.keep_logs:
                     shutil.rmtree(res['log_dir'], ignore_errors=True)
@@ -776,15 +811,16 @@ def main(argv=None):
                             help='also count the processing nodes\' outputs')
         parser.add_argument('--timeout', type=float, default=120.0)
         parser.add_argument('--linger', type=float, default=1.5)
-        parser.add_argument('--idle', type=float, default=3.0,
-                            help='stop this long after the last message')
+        parser.add_argument('--idle', type=float, default=15.0,
+                            help='stop this long after the last message (the harness '
+                                 'interrupts a probe 10 s after the camera has ended)')
         probe_main(parser.parse_args(argv[1:]))
         return 0
     parser = argparse.ArgumentParser(prog='two_host_benchmark', description=__doc__.split(
         '\n\n')[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--profiles', default=','.join(DEFAULT_PROFILES),
-                        help=f'comma list of {", ".join(PROFILES)}, shipped_unicast, '
-                             f'shipped; or all (default: %(default)s)')
+                        help=f'comma list of {", ".join([*PROFILES, *SHIPPED_VARIANTS])}; '
+                             f'or all (default: %(default)s)')
     parser.add_argument('--profile-file', action='append', default=[],
                         metavar='NAME=PATH', help='another profile XML to try')
     parser.add_argument('--runs', type=int, default=3)
