@@ -774,15 +774,20 @@ def benchmark_main(args):
                 res = run_stream(path, args.duration, args.link, args.processing,
                                  profile_env=env, log_dir=None)
                 print(_format_row(name, run, res), flush=True)
+                if not args.keep_logs:
+                    shutil.rmtree(res['log_dir'], ignore_errors=True)
                 if res['shm']:
                     print(f'  !! shared memory mapped: {res["shm"]}')
+                if res['exit_codes'].get('stereo_camera_node') != 0:
+                    print('  the camera had not published its whole duration when the run '
+                          'ended (machine too loaded): frames it never sent count as lost '
+                          'above; the run is left out of the totals')
+                    continue
                 if res['images'] and res['images']['lost']:
                     print(f'  lost frames (first 20 per camera): '
                           f'{res["images"]["missing_first"]}; image probe ended: '
                           f'{res["probe_end"]["images"]}; exit codes {res["exit_codes"]}')
                 totals.setdefault(name, []).append(res)
-                if not args.keep_logs:
-                    shutil.rmtree(res['log_dir'], ignore_errors=True)
         print('\nper profile over all runs:')
         for name, results in totals.items():
             imgs = [r['images'] for r in results if r['images']]
@@ -791,8 +796,10 @@ def benchmark_main(args):
             med = np.median([i['latency_ms']['median'] for i in imgs]) if imgs else math.nan
             p99 = max((i['latency_ms']['p99'] for i in imgs), default=math.nan)
             mx = max((i['latency_ms']['max'] for i in imgs), default=math.nan)
-            print(f'  {name}: lost {lost} of {sent} images; latency median of run medians '
-                  f'{med:.1f} ms, worst run p99 {p99:.1f} ms, max {mx:.1f} ms')
+            fps = min((i['publish_rate_hz'] for i in imgs), default=math.nan)
+            print(f'  {name} ({len(imgs)} runs): lost {lost} of {sent} images; latency '
+                  f'median of run medians {med:.1f} ms, worst run p99 {p99:.1f} ms, max '
+                  f'{mx:.1f} ms; camera rate down to {fps:.1f} frames/s')
         if totals:
             first = next(iter(totals.values()))[0]
             print(f'\nlink: {first["link"]}; sysctl in the namespaces: {first["sysctl"]}')
