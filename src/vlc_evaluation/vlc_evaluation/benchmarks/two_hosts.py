@@ -2,36 +2,40 @@
 
 Two Linux network namespaces stand for the two computers of a train: the **sensor
 host** runs ``stereo_camera_node`` and ``adis16488_node`` (the shipped ``rig.yaml`` and
-node parameter files), the **processing host** runs a probe that counts every image and
-IMU sample and measures their latency, and optionally ``spot_locator_node`` and
-``vlc_decoder_node``. The namespaces are joined by a veth pair on a private /24
-(``10.77.0.1`` sensor, ``10.77.0.2`` processing); ``--link 1gbit`` puts a ``tc tbf``
-qdisc on both ends that sends at 1 Gbit/s (bursts of at most 10 frames) behind a queue
-of 1000 full frames (1.5 MB), as a train Ethernet port with its default txqueuelen
-would (``netem`` is not in every kernel, ``tbf`` is). Every process runs with
-``ip netns exec`` on a DDS domain of its own, ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``
-and the Fast DDS profile under test; the profiles tried carry a UDPv4 transport only, so
-nothing can travel through shared memory (``/dev/shm`` is common to both namespaces):
-the harness checks that no process of the run mapped a Fast DDS shared-memory segment.
+node parameter files), the **processing host** runs two probes (one takes both image
+topics, one the IMU, each counting every message and measuring its latency) and, with
+``--processing``, ``spot_locator_node`` and ``vlc_decoder_node``. The namespaces are
+joined by a veth pair on a private /24 (``10.77.0.1`` sensor, ``10.77.0.2``
+processing); ``--link 1gbit`` puts a ``tc tbf`` qdisc on both ends that sends at
+1 Gbit/s (bursts of at most 10 frames) behind a queue of 1000 full frames (1.5 MB), as
+a train Ethernet port with its default txqueuelen would (``netem`` is not in every
+kernel, ``tbf`` is). Every process runs with ``ip netns exec`` on a DDS domain of its
+own, ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` and the Fast DDS profile under test; the
+profiles tried carry a UDPv4 transport only, so nothing can travel through shared
+memory (``/dev/shm`` is common to both namespaces): the harness records every Fast DDS
+shared-memory file a process of the run maps (none may).
 
 Figures per run: images sent (``ceil(duration · fps)`` per camera: the camera publishes
-every frame with ``t < duration_s`` and exits 0), received (distinct frame indices taken
-by the probe), lost; latency = the probe's callback time − the DDS source timestamp (the
-publisher's ``write`` on the sensor host; both namespaces share one kernel clock),
-median / p99 / max, and the DDS reception timestamp − source timestamp (transport only,
-without the probe's executor). IMU samples likewise (best effort, sensor-data QoS).
+every frame with ``t < duration_s`` and exits 0; a run whose camera has not finished is
+flagged), the rate the camera achieved, received (distinct frame indices), lost;
+latency = the probe's callback time − the DDS source timestamp (the publisher's
+``write`` on the sensor host; both namespaces share one kernel clock), median / p99 /
+max, and the DDS reception timestamp − source timestamp (transport only, without the
+probe's executor); IMU samples received (best effort, sensor-data QoS); the drop
+counters of both namespaces and the machine's load average.
 
-Usage::
+Usage (as root, after ``source scripts/env.sh``)::
 
     two_host_benchmark [--profiles udp_defaults,udp_buffers,...|all] [--runs 3]
                        [--duration 10] [--link none|1gbit] [--processing]
-                       [--profile-file NAME=path.xml ...]
+                       [--profile-file NAME=path.xml ...] [--keep-logs]
 
-``profile NAME`` is one of :data:`PROFILES` (generated into a temporary directory),
+A profile name is one of :data:`PROFILES` (generated into a temporary directory),
 ``shipped`` (``config/fastdds_two_hosts.xml`` of the workspace, ``$VLC_WS``),
 ``shipped_unicast`` (the same without the image readers' multicast locators) or
-``shipped_default_times`` (without the image endpoints' heartbeat/response times). Needs root (or
-CAP_NET_ADMIN/CAP_SYS_ADMIN) for ``ip netns``; prints why and exits 2 without it.
+``shipped_default_times`` (without the image endpoints' heartbeat/response times).
+Needs root (CAP_SYS_ADMIN, CAP_NET_ADMIN) for ``ip netns``; prints why and exits 2
+without it. Results and why the shipped profile is what it is: docs/arch/deployment.md.
 
 The harness (:class:`TwoHosts`, :func:`run_stream`) is also what
 ``tests/test_two_hosts.py`` uses.
