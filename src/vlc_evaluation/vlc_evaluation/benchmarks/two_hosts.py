@@ -492,10 +492,14 @@ def sensor_commands(duration_s, image_subscribers, speed_kmh=60.0):
               _config('vlc_stereo_camera', 'stereo_camera_node.yaml'), *scenario,
               '-p', f'duration_s:={duration_s}',
               '-p', f'wait_for_subscribers:={image_subscribers}']
+    # The IMU paces itself (follow_clock false) from its first subscriber on: following
+    # the camera's /clock, which ends with the last frame, it would stop a few samples
+    # short of duration_s and never exit (the count of samples sent is its exit log).
     imu = [_executable('vlc_stereo_camera', 'adis16488_node'), '--ros-args',
            '--params-file', rig, '--params-file',
            _config('vlc_stereo_camera', 'adis16488_node.yaml'), *scenario,
-           '-p', f'duration_s:={duration_s}', '-p', 'wait_for_subscribers:=1']
+           '-p', f'duration_s:={duration_s}', '-p', 'wait_for_subscribers:=1',
+           '-p', 'follow_clock:=false']
     return {'stereo_camera_node': camera, 'adis16488_node': imu}
 
 
