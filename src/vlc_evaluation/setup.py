@@ -31,6 +31,7 @@ setup(
             'companion_benchmark = vlc_evaluation.benchmarks.companions:main',
             'curvature_benchmark = vlc_evaluation.benchmarks.curvature:main',
             'reacquisition_benchmark = vlc_evaluation.benchmarks.reacquisition:main',
+            'two_host_benchmark = vlc_evaluation.benchmarks.two_hosts:main',
             'companion_score = vlc_evaluation.companion_scoring:main',
             'render_demo_images = vlc_evaluation.demo_images:main',
             'sample_bag = vlc_evaluation.sample_bag:main',
