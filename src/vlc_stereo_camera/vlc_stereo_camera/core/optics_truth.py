@@ -261,6 +261,8 @@ class LensMap:
     illumination : same shape, float32
         cos⁴θ / det J: multiplies an image rendered per ideal pixel into electrons per
         sensor pixel.
+    derivatives : (∂map_x/∂u, ∂map_x/∂v, ∂map_y/∂u, ∂map_y/∂v), each of the same shape,
+        float32: the footprint of a sensor pixel in the ideal image.
     r2_max : float
         Normalized r² beyond which the projection's radial factor is frozen.
     """
@@ -290,6 +292,9 @@ class LensMap:
         self.map_y = (camera.fy * y + camera.cy).astype(np.float32)
         cos4 = 1.0 / (1.0 + r2) ** 2 if vignetting else 1.0
         self.illumination = (cos4 / det).astype(np.float32)
+        # ∂(ideal px)/∂(sensor px) = diag(f)·J⁻¹·diag(1/f), J = ∂(xd, yd)/∂(x, y)
+        self.derivatives = tuple((v / det).astype(np.float32) for v in (
+            e, -b * camera.fx / camera.fy, -c * camera.fy / camera.fx, a))
 
     def window(self, u0, u1, v0, v1):
         """Slices of the map arrays for sensor pixels u0 ≤ u < u1, v0 ≤ v < v1."""

@@ -102,6 +102,11 @@ _POSE_TABLE_STEP_S = 1e-3
 # A lamp pixel counts as covered in the raw image above this remapped coverage fraction.
 _RAW_COVERED = 1e-3
 _RAW_SUBSAMPLES = 3
+# Raw ROIs: the PSF margin less _RAW_INNER_PX sensor pixels is not resampled (no light
+# before the PSF); the ideal image extends _RAW_MARGIN_PX beyond what the resampled pixels
+# see, for their shift to their own row's instant (a few px at 120 km/h).
+_RAW_INNER_PX = 4
+_RAW_MARGIN_PX = 6
 # Wall-reflection patches are evaluated on a coarse grid, σ/3 apart along the patch's
 # narrower image axis (2 to 8 px), and interpolated bilinearly: the error of a Gaussian so
 # interpolated is at most step²/(8σ²) ≈ 1.4 % of its peak (a fraction of an e⁻).
@@ -474,11 +479,22 @@ class StereoRenderer:
         """Camera centres (N, 3) and R_map_cam (N, 3, 3) at times ``t_s`` (N,).
 
         Poses come from the frame's pose table unless ``pose`` = (position (N, 3),
-        R_map_base (N, 3, 3)) is given.
+        R_map_base (N, 3, 3)) is given. With the opt-in models, the poses of a few instants
+        are kept for the frame (culling, fixed points and ROIs of lamps, reflections and
+        distractors ask for the same instants again); the arrays returned are shared.
         """
+        key = None
+        if pose is None and self._truthful and np.size(t_s) <= 16:
+            key = (camera, tuple(np.ravel(t_s).tolist()))
+            cached = self._pose_cache.get(key)
+            if cached is not None:
+                return cached
         position, R = self._poses.at(t_s) if pose is None else pose
         centre = position + R @ self._t_base[camera]
-        return centre, R @ self._R_base[camera]
+        out = centre, R @ self._R_base[camera]
+        if key is not None:
+            self._pose_cache[key] = out
+        return out
 
     def _begin_frame(self, t0_s):
         """Pose table covering every instant this frame's rendering may query."""
@@ -487,6 +503,7 @@ class StereoRenderer:
         self._poses = _PoseTable(self.trajectory, t0_s - 0.5 * span - 2 * _POSE_TABLE_STEP_S,
                                  t0_s + 1.5 * span + c.exposure_s + 2 * _POSE_TABLE_STEP_S,
                                  closed_form=self._truthful)
+        self._pose_cache = {}
 
     def _project(self, points, t_s, camera, ideal=False):
         """Points (M, 3) at times (T,) → uv (T, M, 2), z (T, M).
@@ -535,6 +552,29 @@ class StereoRenderer:
                 return True
         return False
 
+    def _in_view_many(self, geometries, t0_s):
+        """``_may_be_in_view`` of several discs at once (one projection per camera)."""
+        if not geometries:
+            return np.zeros(0, bool)
+        c = self.config
+        centres = np.stack([g.centre for g in geometries])
+        radius = np.array([g.radius_m for g in geometries])
+        keep = np.zeros(len(geometries), bool)
+        for camera in (0, 1):
+            t0c = t0_s + self._skew_s[camera]
+            uv, z = self._project(centres, [t0c, t0c + self.height * c.row_time_s
+                                            + c.exposure_s], camera)
+            front = np.all(z > 0.0, axis=0)
+            crossing = ~front & np.any(z > 0.0, axis=0)
+            with np.errstate(divide='ignore', invalid='ignore'):
+                grow = (self._intrinsics[camera].fx * radius / z.min(axis=0)
+                        + self._pad_px + 2.0)
+            u, v = uv[..., 0], uv[..., 1]
+            box = ((u.min(axis=0) - grow < self.width) & (u.max(axis=0) + grow > 0.0)
+                   & (v.min(axis=0) - grow < self.height) & (v.max(axis=0) + grow > 0.0))
+            keep |= crossing | (front & box)
+        return keep
+
     def _row_mid_time(self, t0_s, v):
         c = self.config
         return t0_s + v * c.row_time_s + 0.5 * c.exposure_s
@@ -582,14 +622,10 @@ class StereoRenderer:
         exact trajectory at each camera's own instant. ``uv`` holds both cameras' raw
         centres, ``t_centre`` both instants.
         """
-        t_centre = []
-        v = 0.5 * (self.height - 1)
-        for camera in (0, 1):            # the right camera starts from the left one's row
-            t0c = t0_s + self._skew_s[camera]
-            v = self._sensor_row_fixed_point(g, t0c, camera, v)
-            if v is None:
-                return None
-            t_centre.append(self._row_mid_time(t0c, v))
+        v = self._sensor_row_fixed_points(g, t0_s)
+        if v is None:
+            return None
+        t_centre = [self._row_mid_time(t0_s + self._skew_s[cam], v[cam]) for cam in (0, 1)]
         s = self.trajectory.sample(t_centre)
         uv = []
         for camera in (0, 1):
@@ -608,19 +644,30 @@ class StereoRenderer:
                     viewing_angle_deg=float(np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))),
                     cos_phi=float(cos_phi))
 
-    def _sensor_row_fixed_point(self, g, t0c, camera, v):
-        """v* = v_sensor(t0c + v*·row_time + exposure/2) of the disc centre, from ``v``.
+    def _sensor_row_fixed_points(self, g, t0_s):
+        """v*[cam] = v_sensor(t0 + skew_cam + v*·row_time + exposure/2) of the disc centre,
+        both cameras at once (2,), or None if the centre is behind a camera.
 
-        Secant steps on v_sensor(t(v)) − v (the function is smooth and nearly linear: the
-        image moves far less than a row per row time), to 1e-6 px; None if the centre is
-        behind the camera. Bounded to the pose table's span, as ``_centre_truth``.
+        Secant steps on v_sensor(t(v)) − v (smooth and nearly linear: the image moves far
+        less than a row per row time), to 1e-6 px. Bounded to the pose table's span, as
+        ``_centre_truth``.
         """
+        c = self.config
+        skew = np.array(self._skew_s)
+
         def f(v):
-            p, z = self._project(g.centre[None, :], [self._row_mid_time(t0c, v)], camera)
-            if not z[0, 0] > 0.0:
-                return None
-            return float(np.clip(p[0, 0, 1], -0.5 * self.height, 1.5 * self.height))
-        v0, f0 = v, f(v)
+            position, R = self._poses.at(t0_s + skew + v * c.row_time_s + 0.5 * c.exposure_s)
+            out = np.empty(2)
+            for cam in (0, 1):
+                centre, R_mc = self._camera_poses(None, cam, (position[cam:cam + 1],
+                                                              R[cam:cam + 1]))
+                p_cam = R_mc[0].T @ (g.centre - centre[0])
+                if not p_cam[2] > 0.0:
+                    return None
+                out[cam] = self._project_camera(p_cam[None, :], cam)[0][0, 1]
+            return np.clip(out, -0.5 * self.height, 1.5 * self.height)
+        v0 = np.full(2, 0.5 * (self.height - 1))
+        f0 = f(v0)
         if f0 is None:
             return None
         v1 = f0
@@ -628,14 +675,56 @@ class StereoRenderer:
             f1 = f(v1)
             if f1 is None:
                 return None
-            if abs(f1 - v1) < 1e-6:
+            if np.all(np.abs(f1 - v1) < 1e-6):
                 return v1
             g0, g1 = f0 - v0, f1 - v1
-            v_next = v1 - g1 * (v1 - v0) / (g1 - g0) if g1 != g0 else f1
-            if not np.isfinite(v_next) or abs(v_next - v1) > 2.0 * abs(f1 - v1) + 1.0:
-                v_next = f1          # a wild secant step: plain iteration instead
+            with np.errstate(divide='ignore', invalid='ignore'):
+                v_next = np.where(g1 != g0, v1 - g1 * (v1 - v0) / (g1 - g0), f1)
+            wild = ~np.isfinite(v_next) | (np.abs(v_next - v1) > 2.0 * np.abs(f1 - v1) + 1.0)
+            v_next = np.where(wild, f1, v_next)      # a wild secant step: plain iteration
+            converged = np.abs(f1 - v1) < 1e-6
+            v_next = np.where(converged, v1, v_next)
             v0, f0, v1 = v1, f1, v_next
         return v1
+
+    def _rois_pair(self, g, t0_s, v_centre, rim=None, pad_px=None, iterations=2):
+        """Both cameras' ``_roi`` at once (one pose-table query per step): each camera with
+        its own row instants (trigger skew included) from its centre row ``v_centre[cam]``.
+        """
+        c = self.config
+        rim = g.rim if rim is None else rim
+        t0c = [t0_s + self._skew_s[cam] for cam in (0, 1)]
+
+        def boxes(times):
+            position, R = self._poses.at(np.concatenate(times))
+            out, start = [], 0
+            for cam in (0, 1):
+                n = len(times[cam])
+                sl, start = slice(start, start + n), start + n
+                if n == 0:
+                    out.append(None)
+                    continue
+                centre, R_mc = self._camera_poses(None, cam, (position[sl], R[sl]))
+                p_cam = np.einsum('tji,tmj->tmi', R_mc, rim[None, :, :] - centre[:, None, :])
+                uv, z = self._project_camera(p_cam, cam)
+                out.append((uv[..., 0].min(), uv[..., 0].max(), uv[..., 1].min(),
+                            uv[..., 1].max()) if np.all(z > 1e-3) else None)
+            return out
+        box = boxes([np.array([self._row_mid_time(t0c[cam], v_centre[cam])]) for cam in (0, 1)])
+        for _ in range(iterations):
+            times = []
+            for cam in (0, 1):
+                if box[cam] is None:
+                    times.append(np.zeros(0))
+                    continue
+                rows = np.linspace(box[cam][2] - 1.0, box[cam][3] + 1.0, 4)
+                times.append((t0c[cam] + rows[:, None] * c.row_time_s
+                              + np.array([0.0, c.exposure_s])).ravel())
+            more = boxes(times)
+            box = [None if b is None or m is None else
+                   (min(b[0], m[0]), max(b[1], m[1]), min(b[2], m[2]), max(b[3], m[3]))
+                   for b, m in zip(box, more)]
+        return [None if b is None else self._box_roi(b, pad_px) for b in box]
 
     def _base_chainage(self, sample):
         """Chainage of base_link's foot point on the alignment (its map x on a straight)."""
@@ -672,6 +761,12 @@ class StereoRenderer:
                 return None
             box = (min(box[0], more[0]), max(box[1], more[1]),
                    min(box[2], more[2]), max(box[3], more[3]))
+        return self._box_roi(box, pad_px)
+
+    def _box_roi(self, box, pad_px=None):
+        """(umin, umax, vmin, vmax) → integer ROI padded by ``pad_px`` (default the PSF's),
+        clipped to the image; None if empty.
+        """
         p = self._pad_px if pad_px is None else pad_px
         u0 = max(0, int(np.floor(box[0])) - p)
         u1 = min(self.width, int(np.ceil(box[1])) + p + 1)
@@ -786,21 +881,30 @@ class StereoRenderer:
         return out
 
     # ---------------------------------------------------------------- raw images
-    def _image_velocity(self, g, t_mid_s, camera):
-        """Velocity field of the disc's ideal (pinhole) image at ``t_mid_s``, affine in
-        the image: (p0 (2,), w0 (2,), G (2, 2)) with w(p) = w0 + G·(p − p0) px/s, from the
-        motion of the centre and two rim points over one exposure; None if the disc is not
-        in front of the camera.
+    def _image_velocities(self, g, t_mid_s):
+        """Per camera, the velocity field of the disc's ideal (pinhole) image at
+        ``t_mid_s[camera]``, affine in the image: (p0 (2,), w0 (2,), G (2, 2)) with
+        w(p) = w0 + G·(p − p0) px/s, from the motion of the centre and two rim points over
+        one exposure; None if the disc is not in front of that camera.
         """
         c = self.config
         points = np.stack([g.centre, g.centre + g.radius_m * g.e1, g.centre + g.radius_m * g.e2])
-        uv, z = self._project(points, [t_mid_s - 0.5 * c.exposure_s,
-                                       t_mid_s + 0.5 * c.exposure_s], camera, ideal=True)
-        if not np.all(z > 0.0):
-            return None
-        p, w = 0.5 * (uv[0] + uv[1]), (uv[1] - uv[0]) / c.exposure_s
-        G = np.linalg.solve((p[1:] - p[0]), (w[1:] - w[0])).T
-        return p[0], w[0], G
+        half = 0.5 * c.exposure_s
+        position, R = self._poses.at([t_mid_s[0] - half, t_mid_s[0] + half,
+                                      t_mid_s[1] - half, t_mid_s[1] + half])
+        out = []
+        for camera in (0, 1):
+            sl = slice(2 * camera, 2 * camera + 2)
+            centre, R_mc = self._camera_poses(None, camera, (position[sl], R[sl]))
+            p_cam = np.einsum('tji,tmj->tmi', R_mc, points[None, :, :] - centre[:, None, :])
+            uv, z = self._project_camera(p_cam, camera, ideal=True)
+            if not np.all(z > 0.0):
+                out.append(None)
+                continue
+            p, w = 0.5 * (uv[0] + uv[1]), (uv[1] - uv[0]) / c.exposure_s
+            G = np.linalg.solve((p[1:] - p[0]), (w[1:] - w[0])).T
+            out.append((p[0], w[0], G))
+        return out
 
     def _coverage_steady(self, g, iroi, camera, centres, R_mc):
         """Steady disc coverage (n_rows, n_cols) float32 of an ideal ROI, or None if the
@@ -811,6 +915,12 @@ class StereoRenderer:
         (sub-row chords intersected with each pixel), the conic written out: Q ∝
         H⁻ᵀ·diag(1, 1, −ρ²)·H⁻¹ with H = K_roi·[e1 e2 c] and H⁻¹ ∝ adj(H), whose rows
         are the cross products of H's columns (the scale cancels when Q is normalized).
+
+        The overlap of a chord [lo, hi] with pixel x is F(hi − x + ½) − F(lo − x + ½),
+        F(t) = min(max(t, 0), 1); summed over a row's chords, F(a − x + ½) is 1 for every
+        pixel left of the one holding the end a and its fractional part in that one: a
+        count and a weighted histogram per row, cumulated, instead of every chord against
+        every pixel.
         """
         c = self.config
         iu0, iu1, iv0, iv1 = iroi
@@ -825,13 +935,16 @@ class StereoRenderer:
         def pixel(v):
             return np.stack([k.fx * v[..., 0] + (k.cx - iu0) * v[..., 2],
                              k.fy * v[..., 1] + (k.cy - iv0) * v[..., 2], v[..., 2]], axis=-1)
+        def cross(a, b):
+            return (a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                    a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                    a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
         h1, h2, h3 = pixel(e1c), pixel(e2c), pixel(dc)
-        r1, r2, r3 = np.cross(h2, h3), np.cross(h3, h1), np.cross(h1, h2)
+        r1, r2, r3 = cross(h2, h3), cross(h3, h1), cross(h1, h2)
         rho2 = g.radius_m ** 2
 
         def q(i, j):
-            return (r1[..., i] * r1[..., j] + r2[..., i] * r2[..., j]
-                    - rho2 * r3[..., i] * r3[..., j])
+            return r1[i] * r1[j] + r2[i] * r2[j] - rho2 * r3[i] * r3[j]
         q00 = q(0, 0)
         q01, q02, q11, q12, q22 = (q(i, j)[..., None] / q00[..., None]
                                    for i, j in ((0, 1), (0, 2), (1, 1), (1, 2), (2, 2)))
@@ -840,27 +953,52 @@ class StereoRenderer:
         b = q01 * y + q02                                             # (n, K, S)
         disc = b * b - (q11 * y * y + 2.0 * q12 * y + q22)
         root = np.sqrt(np.maximum(disc, 0.0))
-        lo = np.where(disc > 0.0, -b - root, 0.0)[..., None]
-        hi = np.where(disc > 0.0, -b + root, 0.0)[..., None]
-        x = np.arange(iu1 - iu0, dtype=float)
-        overlap = np.minimum(hi, x + 0.5) - np.maximum(lo, x - 0.5)
-        np.maximum(overlap, 0.0, out=overlap)                      # (n, K, S, n_cols)
-        return (overlap.sum(axis=(1, 2)) / (K * S)).astype(np.float32)
+        lo = np.where(disc > 0.0, -b - root, 0.0)
+        hi = np.where(disc > 0.0, -b + root, 0.0)
+        n_cols = iu1 - iu0
+        row = np.broadcast_to(np.arange(n_rows)[:, None, None], lo.shape).ravel() * (n_cols + 1)
+
+        def ramp_sums(a):
+            """Σ over a row's chord ends of F(a − x + ½), (n_rows, n_cols)."""
+            a = np.clip(a.ravel(), -0.5, n_cols - 0.5) + 0.5
+            p = np.floor(a)
+            index = row + p.astype(np.int64)
+            size = n_rows * (n_cols + 1)
+            beyond = np.bincount(index, minlength=size).reshape(n_rows, n_cols + 1)
+            inside = np.bincount(index, weights=a - p, minlength=size).reshape(n_rows,
+                                                                              n_cols + 1)
+            # ends in a pixel right of x count 1; an end in pixel x its fraction
+            right = np.cumsum(beyond[:, ::-1], axis=1)[:, ::-1][:, 1:]
+            return right + inside[:, :-1]
+        coverage = ramp_sums(hi) - ramp_sums(lo)
+        return (coverage / (K * S)).astype(np.float32)
 
     def _ideal_roi(self, roi, camera):
-        """The ideal-image box (iu0, iu1, iv0, iv1) whose pixels the sensor ROI samples,
-        with the sensor ROI's maps relative to it (None without a lens).
+        """What the sensor ROI needs of the ideal image: (iroi, maps), maps = (map_x,
+        map_y, inner) or None without a lens.
+
+        The ROI's margin for the PSF spill (``_pad_px``) holds no light before the PSF, so
+        only its inner window ``inner`` = (u0, u1, v0, v1) (the margin less
+        _RAW_INNER_PX) is resampled; ``map_x``/``map_y`` are the inner pixels' ideal
+        coordinates relative to the ideal box ``iroi`` = (iu0, iu1, iv0, iv1), which covers
+        them with _RAW_MARGIN_PX to spare for the samples' shift to their own row's instant
+        (samples outside it read zero).
         """
         lens = self._lens[camera]
         if lens is None:
             return roi, None
         u0, u1, v0, v1 = roi
-        sl = lens.window(u0, u1, v0, v1)
+        trim = max(self._pad_px - _RAW_INNER_PX, 0)
+        a0 = min(u0 + trim, u1 - 1) if u0 > 0 else u0
+        a1 = max(u1 - trim, a0 + 1) if u1 < self.width else u1
+        b0 = min(v0 + trim, v1 - 1) if v0 > 0 else v0
+        b1 = max(v1 - trim, b0 + 1) if v1 < self.height else v1
+        sl = lens.window(a0, a1, b0, b1)
         mx, my = lens.map_x[sl], lens.map_y[sl]
-        # A margin for the rolling-shutter correction of the samples (_render_raw).
-        iu0, iv0 = int(np.floor(mx.min())) - 2, int(np.floor(my.min())) - 2
-        iroi = (iu0, int(np.floor(mx.max())) + 4, iv0, int(np.floor(my.max())) + 4)
-        return iroi, (mx - np.float32(iu0), my - np.float32(iv0), sl)
+        m = _RAW_MARGIN_PX
+        iu0, iv0 = int(np.floor(mx.min())) - m, int(np.floor(my.min())) - m
+        iroi = (iu0, int(np.floor(mx.max())) + m + 2, iv0, int(np.floor(my.max())) + m + 2)
+        return iroi, (mx - np.float32(iu0), my - np.float32(iv0), (a0, a1, b0, b1))
 
     @staticmethod
     def _resample(ideal, map_x, map_y, lens, roi):
@@ -878,19 +1016,16 @@ class StereoRenderer:
         if n_sub == 1:
             return cv2.remap(ideal, map_x, map_y, cv2.INTER_LINEAR,
                              borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        u0, u1, v0, v1 = roi
-        q = lens.pad
-        mx = lens.map_x[v0 + q - 1:v1 + q + 1, u0 + q - 1:u1 + q + 1]
-        my = lens.map_y[v0 + q - 1:v1 + q + 1, u0 + q - 1:u1 + q + 1]
-        dxu, dxv = 0.5 * (mx[1:-1, 2:] - mx[1:-1, :-2]), 0.5 * (mx[2:, 1:-1] - mx[:-2, 1:-1])
-        dyu, dyv = 0.5 * (my[1:-1, 2:] - my[1:-1, :-2]), 0.5 * (my[2:, 1:-1] - my[:-2, 1:-1])
-        out = np.zeros(map_x.shape, np.float32)
+        window = lens.window(*roi)
+        dxu, dxv, dyu, dyv = (d[window] for d in lens.derivatives)
         offsets = ((np.arange(n_sub) + 0.5) / n_sub - 0.5).astype(np.float32)
-        for a in offsets:
-            for b in offsets:
-                out += cv2.remap(ideal, map_x + a * dxu + b * dxv, map_y + a * dyu + b * dyv,
-                                 cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                 borderValue=0.0)
+        along_u = [(map_x + a * dxu, map_y + a * dyu) for a in offsets]
+        along_v = [(b * dxv, b * dyv) for b in offsets]
+        out = np.zeros(map_x.shape, np.float32)
+        for x_u, y_u in along_u:
+            for x_v, y_v in along_v:
+                out += cv2.remap(ideal, x_u + x_v, y_u + y_v, cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         out *= np.float32(1.0 / (n_sub * n_sub))
         return out
 
@@ -916,6 +1051,9 @@ class StereoRenderer:
         if waveform is None:
             waveform = self.lamp_waveform(g.lamp.uid)
         out = []
+        motions = self._image_velocities(
+            g, [self._row_mid_time(t0_s + self._skew_s[cam], truth['uv'][cam][1])
+                for cam in (0, 1)])
         for camera, roi in enumerate(rois):
             if roi is None:
                 out.append(None)
@@ -925,8 +1063,7 @@ class StereoRenderer:
             lens = self._lens[camera]
             iroi, maps = self._ideal_roi(roi, camera)
             iu0, iu1, iv0, iv1 = iroi
-            t_mid = self._row_mid_time(t0c, uv_c[1])
-            motion = self._image_velocity(g, t_mid, camera)
+            motion = motions[camera]
             if motion is None:
                 out.append(None)
                 continue
@@ -952,18 +1089,20 @@ class StereoRenderer:
                 sensor = coverage
                 illumination = self._illumination[camera][v0:v1, u0:u1]
             else:
-                map_x, map_y, window = maps
+                map_x, map_y, inner = maps
                 if w[0] != 0.0 or w[1] != 0.0:
                     x_abs, y_abs = map_x + np.float32(iu0), map_y + np.float32(iv0)
                     wx = w[0] + G[0, 0] * (x_abs - p0[0]) + G[0, 1] * (y_abs - p0[1])
                     wy = w[1] + G[1, 0] * (x_abs - p0[0]) + G[1, 1] * (y_abs - p0[1])
                     alpha = np.interp(y_abs, ys, np.gradient(v_ref))
-                    dt = (np.arange(v0, v1)[:, None] - np.interp(y_abs, ys, v_ref)) * (
+                    dt = (np.arange(inner[2], inner[3])[:, None] - np.interp(y_abs, ys, v_ref)) * (
                         c.row_time_s / (1.0 - alpha * wy * c.row_time_s))
                     map_x = (map_x - wx * dt).astype(np.float32)
                     map_y = (map_y - wy * dt).astype(np.float32)
-                sensor = self._resample(coverage, map_x, map_y, lens, roi)
-                illumination = lens.illumination[window]
+                sensor = np.zeros((v1 - v0, u1 - u0), np.float32)
+                sensor[inner[2] - v0:inner[3] - v0, inner[0] - u0:inner[1] - u0] = self._resample(
+                    coverage, map_x, map_y, lens, inner)
+                illumination = lens.illumination[lens.window(u0, u1, v0, v1)]
             covered = np.flatnonzero(sensor.max(axis=1) > _RAW_COVERED)
             if covered.size == 0:
                 out.append(None)
@@ -1008,11 +1147,13 @@ class StereoRenderer:
         centre, rim, peak_cd_m2 = self._reflection_geometry(g)
         scale_e = c.optics.electrons_per_luminance(c.exposure_s) * peak_cd_m2
         out = []
-        for camera in (0, 1):
+        v_centre = [truth['uv'][cam][1] if 'uv' in truth else truth['uv_left'][1]
+                    for cam in (0, 1)]
+        # One rolling-shutter iteration: the box may miss a sliver of the 3σ tail.
+        rois = self._rois_pair(g, t0_s, v_centre, rim=rim, pad_px=0, iterations=1)
+        for camera, roi in enumerate(rois):
             t0c = t0_s + self._skew_s[camera]
-            v_guess = truth['uv'][camera][1] if 'uv' in truth else truth['uv_left'][1]
-            # One rolling-shutter iteration: the box may miss a sliver of the 3σ tail.
-            roi = self._roi(g, t0c, v_guess, camera, rim=rim, pad_px=0, iterations=1)
+            v_guess = v_centre[camera]
             if roi is None:
                 out.append(None)
                 continue
@@ -1153,9 +1294,14 @@ class StereoRenderer:
         render_disc = self._render_raw if raw else self._render_lamp
         items = ([], [])
         truth = []
-        for lamp in self.lamp_map.near(x0, c.lamp_search_ahead_m, c.lamp_search_behind_m):
+        near = self.lamp_map.near(x0, c.lamp_search_ahead_m, c.lamp_search_behind_m)
+        if self._truthful:
+            geometries = [self._lamp_geometry(lamp) for lamp in near]
+            near = [lamp for lamp, keep in zip(near, self._in_view_many(geometries, t0_s))
+                    if keep]
+        for lamp in near:
             g = self._lamp_geometry(lamp)
-            if not self._may_be_in_view(g, t0_s):
+            if not self._truthful and not self._may_be_in_view(g, t0_s):
                 continue
             centre = centre_truth(g, t0_s)
             if centre is None:
@@ -1176,9 +1322,10 @@ class StereoRenderer:
                     if item is not None:
                         items[cam].append(item)
         distractors = []
-        for g in self._distractors:
-            if not (x0 - c.lamp_search_behind_m <= g.centre[0] <= x0 + c.lamp_search_ahead_m
-                    and self._may_be_in_view(g, t0_s)):
+        candidates = [g for g in self._distractors
+                      if x0 - c.lamp_search_behind_m <= g.centre[0] <= x0 + c.lamp_search_ahead_m]
+        for g, keep in zip(candidates, self._in_view_many(candidates, t0_s)):
+            if not keep:
                 continue
             centre = centre_truth(g, t0_s)
             if centre is None:
@@ -1226,8 +1373,7 @@ class StereoRenderer:
         """Each camera's ROI of disc ``g`` (the rectified pair: both from the left row)."""
         if self.config.optics_truth is None:
             return [self._roi(g, t0_s, centre['uv_left'][1], cam) for cam in (0, 1)]
-        return [self._roi(g, t0_s + self._skew_s[cam], centre['uv'][cam][1], cam)
-                for cam in (0, 1)]
+        return self._rois_pair(g, t0_s, [centre['uv'][cam][1] for cam in (0, 1)])
 
     def _inside(self, uv):
         return bool(-0.5 <= uv[0] <= self.width - 0.5 and -0.5 <= uv[1] <= self.height - 0.5)

@@ -82,7 +82,7 @@ class Distractor:
             raise ValueError(f'Distractor {self.name!r}: position (3,), a non-zero normal, '
                              'diameter and luminance > 0, flicker_hz >= 0, depth in [0, 1]')
         object.__setattr__(self, 'position_m', tuple(float(x) for x in self.position_m))
-        object.__setattr__(self, 'normal', tuple(n / np.linalg.norm(n)))
+        object.__setattr__(self, 'normal', tuple(float(x) + 0.0 for x in n / np.linalg.norm(n)))
 
     @classmethod
     def on_alignment(cls, alignment, chainage_m, lateral_m, height_m, facing='oncoming',
