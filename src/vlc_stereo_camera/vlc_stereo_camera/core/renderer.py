@@ -614,35 +614,45 @@ class StereoRenderer:
                     viewing_angle_deg=float(np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))),
                     cos_phi=float(cos_phi))
 
-    def _centre_truth_raw(self, g, t0_s):
-        """The truth of ``_centre_truth`` for raw images (``optics_truth``).
+    def _centre_truths_raw(self, geometries, t0_s):
+        """The truth of ``_centre_truth`` for raw images (``optics_truth``), for several
+        discs (a list of dicts or None, one per disc).
 
         Per camera, the fixed point of the centre's *sensor* row (through the lens) with
         that camera's row instants (the right camera's ``trigger_skew_s`` late), then the
-        exact trajectory at each camera's own instant. ``uv`` holds both cameras' raw
-        centres, ``t_centre`` both instants.
+        exact trajectory at each camera's own instant (one ``Trajectory.sample`` for all
+        discs). ``uv`` holds both cameras' raw centres.
         """
-        v = self._sensor_row_fixed_points(g, t0_s)
-        if v is None:
-            return None
-        t_centre = [self._row_mid_time(t0_s + self._skew_s[cam], v[cam]) for cam in (0, 1)]
-        s = self.trajectory.sample(t_centre)
-        uv = []
-        for camera in (0, 1):
-            pose = (s.position_m[camera:camera + 1], s.R_map_base[camera:camera + 1])
-            centre, R = self._camera_poses(None, camera, pose)
-            p_cam = R[0].T @ (g.centre - centre[0])
-            uv.append(self._project_camera(p_cam[None, :], camera)[0][0])
-            if camera == 0:
-                p_left, centre_left = p_cam, centre[0]
-        line_of_sight = centre_left - g.centre
-        cos_phi = line_of_sight @ g.lamp.normal / np.linalg.norm(line_of_sight)
-        return dict(t_centre_s=t_centre[0], t_centre_right_s=t_centre[1],
-                    uv_left=uv[0], uv_right=uv[1], uv=uv,
-                    depth_m=float(p_left[2]), range_m=float(np.linalg.norm(p_left)),
-                    along_track_m=float(g.lamp.track_chainage_m - self._base_chainage(s)),
-                    viewing_angle_deg=float(np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))),
-                    cos_phi=float(cos_phi))
+        rows = [self._sensor_row_fixed_points(g, t0_s) for g in geometries]
+        found = [i for i, v in enumerate(rows) if v is not None]
+        out = [None] * len(geometries)
+        if not found:
+            return out
+        t_centre = np.array([[self._row_mid_time(t0_s + self._skew_s[cam], rows[i][cam])
+                              for cam in (0, 1)] for i in found])
+        s = self.trajectory.sample(t_centre.ravel())
+        chainage, _ = self.trajectory.alignment.project(s.position_m[0::2, 0],
+                                                         s.position_m[0::2, 1])
+        for n, i in enumerate(found):
+            g, uv = geometries[i], []
+            for camera in (0, 1):
+                j = 2 * n + camera
+                centre, R = self._camera_poses(None, camera, (s.position_m[j:j + 1],
+                                                              s.R_map_base[j:j + 1]))
+                p_cam = R[0].T @ (g.centre - centre[0])
+                uv.append(self._project_camera(p_cam[None, :], camera)[0][0])
+                if camera == 0:
+                    p_left, centre_left = p_cam, centre[0]
+            line_of_sight = centre_left - g.centre
+            cos_phi = line_of_sight @ g.lamp.normal / np.linalg.norm(line_of_sight)
+            out[i] = dict(
+                t_centre_s=float(t_centre[n, 0]), t_centre_right_s=float(t_centre[n, 1]),
+                uv_left=uv[0], uv_right=uv[1], uv=uv, depth_m=float(p_left[2]),
+                range_m=float(np.linalg.norm(p_left)),
+                along_track_m=float(g.lamp.track_chainage_m - chainage[n]),
+                viewing_angle_deg=float(np.degrees(np.arccos(np.clip(cos_phi, -1, 1)))),
+                cos_phi=float(cos_phi))
+        return out
 
     def _sensor_row_fixed_points(self, g, t0_s):
         """v*[cam] = v_sensor(t0 + skew_cam + v*·row_time + exposure/2) of the disc centre,
@@ -1051,7 +1061,7 @@ class StereoRenderer:
         if waveform is None:
             waveform = self.lamp_waveform(g.lamp.uid)
         out = []
-        motions = self._image_velocities(
+        motions = truth['motions'] = self._image_velocities(
             g, [self._row_mid_time(t0_s + self._skew_s[cam], truth['uv'][cam][1])
                 for cam in (0, 1)])
         for camera, roi in enumerate(rois):
@@ -1149,8 +1159,7 @@ class StereoRenderer:
         out = []
         v_centre = [truth['uv'][cam][1] if 'uv' in truth else truth['uv_left'][1]
                     for cam in (0, 1)]
-        # One rolling-shutter iteration: the box may miss a sliver of the 3σ tail.
-        rois = self._rois_pair(g, t0_s, v_centre, rim=rim, pad_px=0, iterations=1)
+        rois = self._reflection_rois(g, t0_s, v_centre, rim, truth.get('motions'))
         for camera, roi in enumerate(rois):
             t0c = t0_s + self._skew_s[camera]
             v_guess = v_centre[camera]
@@ -1205,6 +1214,27 @@ class StereoRenderer:
                 electrons *= waveform.mean_over(t_row, t_row + c.exposure_s).astype(
                     np.float32)[:, None]
             out.append((roi, electrons))
+        return out
+
+    def _reflection_rois(self, g, t0_s, v_centre, rim, motions):
+        """Both cameras' ROIs of a reflection patch (outline ``rim``). With the disc's image
+        motion known (raw images), the outline at the centre row's instant, widened by the
+        motion over the patch's rows (the rolling shutter; a third to spare for its
+        stretch); else one rolling-shutter iteration of ``_roi``. Either may miss a sliver
+        of the 3σ tail.
+        """
+        if motions is None:
+            return self._rois_pair(g, t0_s, v_centre, rim=rim, pad_px=0, iterations=1)
+        rois = self._rois_pair(g, t0_s, v_centre, rim=rim, pad_px=0, iterations=0)
+        out = []
+        for roi, motion, v in zip(rois, motions, v_centre):
+            if roi is None or motion is None:
+                out.append(roi)
+                continue
+            span_s = max(v - roi[2], roi[3] - v) * self.config.row_time_s
+            grow = int(np.ceil(1.3 * np.hypot(*motion[1]) * span_s)) + 1
+            out.append((max(roi[0] - grow, 0), min(roi[1] + grow, self.width),
+                        max(roi[2] - grow, 0), min(roi[3] + grow, self.height)))
         return out
 
     # ---------------------------------------------------------------- frame
@@ -1290,20 +1320,28 @@ class StereoRenderer:
         x0 = pose0.position_m[0, 0]
         self._begin_frame(t0_s)
         raw = c.optics_truth is not None
-        centre_truth = self._centre_truth_raw if raw else self._centre_truth
         render_disc = self._render_raw if raw else self._render_lamp
         items = ([], [])
         truth = []
         near = self.lamp_map.near(x0, c.lamp_search_ahead_m, c.lamp_search_behind_m)
+        candidates = [g for g in self._distractors
+                      if x0 - c.lamp_search_behind_m <= g.centre[0] <= x0 + c.lamp_search_ahead_m]
         if self._truthful:
             geometries = [self._lamp_geometry(lamp) for lamp in near]
             near = [lamp for lamp, keep in zip(near, self._in_view_many(geometries, t0_s))
                     if keep]
+            candidates = [g for g, keep in zip(candidates, self._in_view_many(candidates, t0_s))
+                          if keep]
+        if raw:
+            centres = self._centre_truths_raw(
+                [self._lamp_geometry(lamp) for lamp in near] + candidates, t0_s)
+            centre_truth = dict(zip([id(self._lamp_geometry(lamp)) for lamp in near]
+                                    + [id(g) for g in candidates], centres))
         for lamp in near:
             g = self._lamp_geometry(lamp)
             if not self._truthful and not self._may_be_in_view(g, t0_s):
                 continue
-            centre = centre_truth(g, t0_s)
+            centre = centre_truth[id(g)] if raw else self._centre_truth(g, t0_s)
             if centre is None:
                 continue
             rois = self._disc_rois(g, t0_s, centre)
@@ -1322,12 +1360,8 @@ class StereoRenderer:
                     if item is not None:
                         items[cam].append(item)
         distractors = []
-        candidates = [g for g in self._distractors
-                      if x0 - c.lamp_search_behind_m <= g.centre[0] <= x0 + c.lamp_search_ahead_m]
-        for g, keep in zip(candidates, self._in_view_many(candidates, t0_s)):
-            if not keep:
-                continue
-            centre = centre_truth(g, t0_s)
+        for g in candidates:
+            centre = centre_truth[id(g)] if raw else self._centre_truth(g, t0_s)
             if centre is None:
                 continue
             rois = self._disc_rois(g, t0_s, centre)
