@@ -292,7 +292,8 @@ def test_rolling_shutter_follows_the_sensor_row_at_speed(lamp_map):
     by ~0.07 row per column there): the rendered raw spot matches a brute-force rendering
     that exposes every sub-pixel at its *sensor* row's instants, within 0.03 px in
     centroid and 0.5 % in light, in both cameras (the right one 15 µs late). Timing the
-    points by their ideal rows instead would move the centroid by more than 0.15 px.
+    points by their ideal rows instead (~20 rows off here) would move the centroid by
+    more than a pixel.
     """
     config = geometry_only()
     trajectory = moving(120.0)
@@ -318,7 +319,7 @@ def test_rolling_shutter_follows_the_sensor_row_at_speed(lamp_map):
         if camera == 0:
             wrong = brute_force_raw(renderer, lamp, t0, camera, roi, row_of_pixel='ideal',
                                     n_sub=4, K=4) * on_e
-            assert np.hypot(*(centroid(wrong) - centroid(ref))) > 0.15
+            assert np.hypot(*(centroid(wrong) - centroid(ref))) > 1.0      # 5.2 px
 
 
 def test_trigger_skew_moves_the_right_image_by_speed_times_skew(lamp_map):
