@@ -32,6 +32,40 @@ toward the bottom-left of the image, where the camera sees the lit wall). A full
 fresh noise draw per frame would cost more than rendering the lamps, so background noise comes
 from a seeded bank of pre-rendered noisy background frames (one picked per frame and
 camera); the regions around lamps get fresh noise every frame.
+
+Optional, off by default (``SensorConfig`` alone reproduces the model above bit for bit):
+
+5. Fixed pattern and row noise (:class:`FixedPatternConfig`, :class:`FixedPattern`), in
+   the terms of the EMVA 1288 standard (Release 3.1, 2016, §4 "Spatial nonuniformity and
+   defect pixels"), drawn once per camera from the seed:
+   * PRNU: a per-pixel gain 1 + N(0, ``prnu_rms``) on the photo-signal; industrial CMOS
+     cameras' EMVA 1288 datasheets give PRNU of a few tenths of a percent to ~1 % (the
+     default 1 % is the pessimistic end, an uncorrected low-cost sensor).
+   * DSNU: a per-pixel dark offset N(0, ``dsnu_rms_e``) e⁻ (datasheets: ~1–10 e⁻ at short
+     exposures, dominated by the readout's offset spread rather than dark current).
+   * Hot pixels: a Poisson number of pixels (``hot_pixel_fraction``, a few per million)
+     with a dark current log-uniform in ``hot_pixel_dark_current_e_per_s`` (default
+     2·10⁵–4·10⁶ e⁻/s, 4·10³–8·10⁴ × the 50 e⁻/s median: an assumption for a warm sensor,
+     whose dark current doubles every ~6–8 °C; set it from a dark frame of the real
+     camera), integrated over the exposure: 10–200 e⁻ (0.3–5 DN) at 50 µs. Dark-frame
+     studies also find hot pixels whose excess does not grow with the exposure; those
+     would be DSNU outliers, not modelled.
+   * Row noise: one temporal offset N(0, ``row_noise_e``) e⁻ per row and frame, common to
+     the whole row (the row's shared readout circuitry); typically a fraction of the
+     read noise (1 e⁻ against 3 e⁻ by default). At this gain (39 e⁻/DN) it is far below
+     one DN and shows only as a row-wise bias of the rounding.
+   With fixed pattern on, the signal of a pixel is S·gain + dark + offset and the
+   shot and read noise are drawn as one Gaussian of variance e + read²: identical to
+   drawing them apart except for pixels within a few e⁻ of the full well, which the
+   8-bit ADC clips to 255 either way. The background bank is drawn per camera with the
+   camera's pattern, and each bank frame carries its own row offsets, which the regions
+   around lamps of a frame take over, so a row's offset is the same across the whole row
+   (it cycles with the bank's ``noise_bank_size`` frames, as the background noise does).
+6. Noise table (:class:`NoiseTable`): the Gaussian noise of the regions around lamps
+   taken from a window at a random offset in a table of pre-drawn standard normal
+   samples instead of drawing it each frame (a draw costs ~20–40 ns per sample; a
+   near lamp's regions are ~10⁵ pixels). For speed; the table is far larger than any
+   region, so no receiver can see the repetition.
 """
 from dataclasses import dataclass
 
@@ -62,6 +96,13 @@ class OpticsConfig:
         if not 0.0 < self.lens_transmission <= 1.0 or not 0.0 < self.quantum_efficiency <= 1.0:
             raise ValueError('lens_transmission and quantum_efficiency must be in (0, 1]')
         self.order_m = lambertian_order(self.half_power_angle_deg)
+
+    def electrons_per_luminance(self, exposure_s):
+        """Electrons of a pixel that sees a surface of 1 cd/m² on axis over ``exposure_s``
+        (E = π·τ·L/(4N²), steps 2–3); multiply by the surface's luminance and cos⁴θ.
+        """
+        illuminance_lux = np.pi * self.lens_transmission / (4.0 * self.f_number ** 2)
+        return illuminance_lux * exposure_s * self.electrons_per_lux_second()
 
     def electrons_per_lux_second(self):
         """Photo-electrons per pixel per lux·second of sensor illuminance."""
@@ -107,6 +148,78 @@ class SensorConfig:
         return self.adc_max_dn / self.full_well_e
 
 
+@dataclass
+class FixedPatternConfig:
+    """Fixed-pattern and row noise of step 5 of the module docstring (e⁻, e⁻/s)."""
+
+    prnu_rms: float = 0.01
+    dsnu_rms_e: float = 2.0
+    row_noise_e: float = 1.0
+    hot_pixel_fraction: float = 4e-6
+    hot_pixel_dark_current_e_per_s: tuple = (2e5, 4e6)
+
+    def __post_init__(self):
+        lo, hi = self.hot_pixel_dark_current_e_per_s
+        if not (0.0 <= self.prnu_rms < 0.5 and self.dsnu_rms_e >= 0.0
+                and self.row_noise_e >= 0.0 and 0.0 <= self.hot_pixel_fraction < 0.01
+                and 0.0 < lo <= hi):
+            raise ValueError('FixedPatternConfig: prnu_rms in [0, 0.5), dsnu_rms_e and '
+                             'row_noise_e >= 0, hot_pixel_fraction in [0, 0.01), '
+                             '0 < hot dark current low <= high')
+
+
+class FixedPattern:
+    """One camera's fixed pattern, drawn once (step 5 of the module docstring).
+
+    Attributes
+    ----------
+    gain : (H, W) float32
+        Per-pixel photo-response gain (PRNU), mean 1.
+    offset_e : (H, W) float32
+        Per-pixel dark offset over one exposure, e⁻ (DSNU, plus hot pixels' dark signal).
+    hot_pixels : (rows (n,), cols (n,), dark signal (n,) e⁻)
+    """
+
+    def __init__(self, config, height, width, exposure_s, rng):
+        self.config = config
+        shape = (height, width)
+        self.gain = (1.0 + config.prnu_rms * rng.standard_normal(shape)).astype(np.float32)
+        np.maximum(self.gain, 0.0, out=self.gain)
+        self.offset_e = (config.dsnu_rms_e * rng.standard_normal(shape)).astype(np.float32)
+        n_hot = int(rng.poisson(config.hot_pixel_fraction * height * width))
+        flat = rng.choice(height * width, size=n_hot, replace=False)
+        lo, hi = config.hot_pixel_dark_current_e_per_s
+        signal_e = np.exp(rng.uniform(np.log(lo), np.log(hi), n_hot)) * exposure_s
+        rows, cols = np.unravel_index(flat, shape)
+        self.offset_e[rows, cols] += signal_e.astype(np.float32)
+        self.hot_pixels = (rows, cols, signal_e)
+
+    def row_offsets_e(self, rng):
+        """(H,) float32 row noise of one frame, e⁻."""
+        return (self.config.row_noise_e
+                * rng.standard_normal(self.gain.shape[0])).astype(np.float32)
+
+
+class NoiseTable:
+    """Standard normal samples drawn once; windows at random offsets serve as noise.
+
+    ``take(shape, rng)`` returns a (read-only) view of ``prod(shape)`` consecutive
+    samples starting at an offset drawn from ``rng`` (a fresh draw if the table is too
+    small).
+    """
+
+    def __init__(self, size, rng):
+        self.z = rng.standard_normal(int(size), dtype=np.float32)
+        self.z.flags.writeable = False
+
+    def take(self, shape, rng):
+        n = int(np.prod(shape))
+        if n > self.z.size:
+            return rng.standard_normal(shape, dtype=np.float32)
+        offset = int(rng.integers(0, self.z.size - n + 1))
+        return self.z[offset:offset + n].reshape(shape)
+
+
 class SensorModel:
     """Turns expected electrons per pixel into a noisy 8-bit image (step 4)."""
 
@@ -126,12 +239,22 @@ class SensorModel:
         shape = (0.55 + 0.9 * v) * (1.2 - 0.4 * u)
         return (c.background_dn / c.gain_dn_per_e * shape / shape.mean()).astype(np.float32)
 
-    def expose(self, signal_e, rng):
+    def expose(self, signal_e, rng, pattern=None, window=None, row_offset_e=None,
+               normal=None):
         """Mean electrons (float array) → uint8 image of the same shape.
 
         Adds dark signal, shot noise (Gaussian approximation of Poisson), saturation at the
         full well, read noise, gain, black level and 8-bit quantization.
+
+        Optional (step 5 and 6 of the module docstring): ``pattern`` a
+        :class:`FixedPattern` of the whole sensor with ``window`` = (u0, u1, v0, v1) the
+        pixels ``signal_e`` covers, half-open (default: all); ``row_offset_e`` (rows,) the
+        frame's row noise for those rows, e⁻; ``normal`` standard normal noise of the shape of
+        ``signal_e`` (default: drawn from ``rng``). With any of them the shot and read
+        noise are one Gaussian draw per pixel.
         """
+        if pattern is not None or row_offset_e is not None or normal is not None:
+            return self._expose_one_draw(signal_e, rng, pattern, window, row_offset_e, normal)
         c = self.config
         e = np.asarray(signal_e, dtype=np.float32) + np.float32(self.dark_e)
         if self.noise:
@@ -147,3 +270,40 @@ class SensorModel:
         """(n, H, W) uint8 noisy background frames, ``n = noise_bank_size``."""
         n = self.config.noise_bank_size if self.noise else 1
         return np.stack([self.expose(background_e, rng) for _ in range(n)])
+
+    def _expose_one_draw(self, signal_e, rng, pattern, window, row_offset_e, normal):
+        c = self.config
+        e = np.asarray(signal_e, dtype=np.float32)
+        if pattern is not None:
+            u0, u1, v0, v1 = window if window is not None else (0, e.shape[1], 0, e.shape[0])
+            e = e * pattern.gain[v0:v1, u0:u1]
+            e += pattern.offset_e[v0:v1, u0:u1]
+            e += np.float32(self.dark_e)
+        else:
+            e = e + np.float32(self.dark_e)
+        if self.noise:
+            z = normal if normal is not None else rng.standard_normal(e.shape, dtype=np.float32)
+            sigma = np.maximum(e, 0.0)
+            sigma += np.float32(c.read_noise_e ** 2)
+            np.sqrt(sigma, out=sigma)
+            sigma *= z
+            e += sigma
+        np.clip(e, 0.0, c.full_well_e, out=e)
+        if row_offset_e is not None and self.noise:
+            e += np.asarray(row_offset_e, dtype=np.float32)[:, None]
+        dn = e * np.float32(c.gain_dn_per_e) + np.float32(c.black_level_dn + 0.5)
+        np.clip(dn, 0.0, c.adc_max_dn, out=dn)
+        return dn.astype(np.uint8)
+
+    def pattern_bank(self, background_e, rng, pattern):
+        """Background bank of one camera with its fixed pattern (step 5).
+
+        Returns (frames (n, H, W) uint8, row offsets (n, H) float32 e⁻): each frame drawn
+        with its own row noise, which the lamp regions of a frame that shows it must use.
+        """
+        n = self.config.noise_bank_size if self.noise else 1
+        rows = np.stack([pattern.row_offsets_e(rng) if self.noise
+                         else np.zeros(background_e.shape[0], np.float32) for _ in range(n)])
+        frames = np.stack([self.expose(background_e, rng, pattern=pattern, row_offset_e=r)
+                           for r in rows])
+        return frames, rows
