@@ -265,6 +265,98 @@ def test_invalid_parameters_raise_in_process(make_node, params, error, text):
         make_node(**params)
 
 
+# --- sensor faults (rig parameters, core/sensor_faults.py) -------------------------------
+
+def _clock_tick(node, t_ns):
+    from rosgraph_msgs.msg import Clock
+    msg = Clock()
+    msg.clock.sec, msg.clock.nanosec = divmod(EPOCH_NS + t_ns, 1_000_000_000)
+    node._on_clock(msg)
+    return [imu_arrays(m)[0] - EPOCH_NS for m in node.sent]
+
+
+def test_faults_off_publish_exactly_as_before(make_node):
+    plain = _run(make_node(rate_hz=400.0, realtime_factor=0.0, seed=5), 3)
+    explicit = _run(make_node(rate_hz=400.0, realtime_factor=0.0, seed=5, imu_burst_s=0.0,
+                              imu_stamp_offset_s=0.0), 3)
+    assert [imu_arrays(m) for m in plain] == [imu_arrays(m) for m in explicit]
+    node = make_node(rate_hz=400.0, realtime_factor=0.0)
+    assert node._imu_pub.qos_profile.depth == qos_profile_sensor_data.depth
+    node._publish_diagnostics()
+    keys = {kv.key for kv in node.diag_sent[0].status[0].values}
+    assert 'samples_dropped' not in keys and 'samples_held' not in keys
+
+
+def test_dropout_windows_lose_samples_and_keep_the_others_unchanged(make_node):
+    reference = _run(make_node(rate_hz=400.0, realtime_factor=0.0, seed=5), 5)
+    node = make_node(rate_hz=400.0, realtime_factor=0.0, seed=5,
+                     imu_dropouts_s=[0.1, 0.05, 0.3, 0.0125, 0.31, 0.01])
+    sent = _run(node, 5)
+    lost = [n for n in range(200) if 40 <= n < 60 or 120 <= n < 128]   # overlapping 2nd/3rd
+    assert [imu_arrays(m)[0] for m in sent] == \
+        [EPOCH_NS + n * 2_500_000 for n in range(200) if n not in lost]
+    kept = [imu_arrays(m) for i, m in enumerate(reference) if i not in lost]
+    assert [imu_arrays(m) for m in sent] == kept          # content as without the fault
+    node._publish_diagnostics()
+    values = {kv.key: kv.value for kv in node.diag_sent[0].status[0].values}
+    assert values['samples_dropped'] == str(len(lost)) and values['samples_published'] == '172'
+
+
+def test_bursts_follow_the_clock_to_the_boundaries(make_node):
+    node = make_node(rate_hz=400.0, follow_clock=True, imu_burst_s=0.1)
+    assert node._imu_pub.qos_profile.depth >= 40            # a burst fits the history
+    assert _clock_tick(node, 0) == []                       # sample 0 waits for 0.1 s
+    assert _clock_tick(node, 99_000_000) == []
+    # the tick at the boundary: samples [0, 0.1 s), back to back, own stamps
+    assert _clock_tick(node, 100_000_000) == [n * 2_500_000 for n in range(40)]
+    assert len(_clock_tick(node, 150_000_000)) == 40        # t = 0.1 s is held
+    assert len(_clock_tick(node, 205_000_000)) == 80        # first tick after 0.2 s
+    assert len(_clock_tick(node, 420_000_000)) == 160       # two bursts after a stall
+    node._publish_diagnostics()
+    values = {kv.key: kv.value for kv in node.diag_sent[0].status[0].values}
+    assert values['samples_held'] == '9'                    # t = 0.4 .. 0.42 s
+
+
+def test_bursts_self_paced_and_the_last_burst_at_duration(make_node):
+    node = make_node(rate_hz=400.0, realtime_factor=0.0, imu_burst_s=0.25, duration_s=0.6)
+    counts = []
+    for _ in range(8):
+        node._on_tick()                                     # 0.1 s of samples per tick
+        counts.append(len(node.sent))
+    # the boundaries 0.25 s and 0.5 s are reached by the samples of ticks 3 and 6, which
+    # also ends the run (duration_s): the 40 samples still held leave as a last burst
+    assert counts == [0, 0, 100, 100, 100, 240, 240, 240]
+    assert [imu_arrays(m)[0] - EPOCH_NS for m in node.sent] == \
+        [n * 2_500_000 for n in range(240)]
+    assert node.finished.done()
+
+
+def test_stamp_offset_and_clock_jumps_move_stamps_not_the_release(make_node):
+    node = make_node(rate_hz=400.0, follow_clock=True, imu_stamp_offset_s=-0.0101,
+                     sensor_clock_jumps_s=[0.05, 0.2, 0.1, -0.5])
+    stamps = _clock_tick(node, 125_000_000)
+    assert len(stamps) == 51                                 # t = 0 .. 0.125 s released
+    expected = [n * 2_500_000 - 10_100_000 + (200_000_000 if n >= 20 else 0)
+                - (500_000_000 if n >= 40 else 0) for n in range(51)]
+    assert stamps == expected
+    # same content as the unshifted run
+    ref = make_node(rate_hz=400.0, follow_clock=True)
+    _clock_tick(ref, 125_000_000)
+    assert [imu_arrays(m)[1:] for m in node.sent] == [imu_arrays(m)[1:] for m in ref.sent]
+
+
+@pytest.mark.parametrize('params, text', [
+    ({'imu_dropouts_s': [1.0]}, 'imu_dropouts_s must hold pairs'),
+    ({'camera_dropouts_s': [1.0, 0.0]}, 'duration_s must be > 0'),
+    ({'sensor_clock_jumps_s': [-1.0, 0.5]}, 'at_s must be >= 0'),
+    ({'imu_burst_s': -1.0}, 'imu_burst_s'),
+    ({'imu_dropouts_s': [1, 2]}, 'DOUBLE_ARRAY'),
+])
+def test_invalid_fault_parameters_raise_in_process(make_node, params, text):
+    with pytest.raises((ValueError, ParameterException), match=text):
+        make_node(**params)
+
+
 # --- the installed executable -----------------------------------------------------------
 
 def _wait_exit(proc, timeout_s=30.0):

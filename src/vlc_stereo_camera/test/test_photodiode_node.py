@@ -104,6 +104,20 @@ def test_following_the_clock_publishes_each_window_once_it_has_passed(make_node)
     assert len(node.sent) == 5
 
 
+def test_sensor_clock_jumps_step_the_stamps_not_the_samples(make_node):
+    make, _ = make_node
+    node = make(sensor_clock_jumps_s=[0.12, 0.25, 0.16, -0.5], **SCENARIO)
+    ref = make(**SCENARIO)
+    for n in (node, ref):
+        n._on_clock(ClockMsg(clock=Time(sec=EPOCH_NS // 10 ** 9, nanosec=0)))
+        n._on_clock(ClockMsg(clock=Time(sec=EPOCH_NS // 10 ** 9, nanosec=200_000_000)))
+    # samples t = 0 .. 0.18 s; from 0.12 s on +0.25 s, from 0.16 s on -0.25 s in all
+    jump = [0] * 6 + [250_000_000] * 2 + [-250_000_000] * 2
+    assert [_stamp_ns(m) for m in node.sent] == \
+        [EPOCH_NS + n * 20_000_000 + jump[n] for n in range(10)]
+    assert [bytes(m.data) for m in node.sent] == [bytes(m.data) for m in ref.sent]
+
+
 def test_invalid_parameters_stop_the_node(make_node):
     make, _ = make_node
     with pytest.raises(ParameterException):

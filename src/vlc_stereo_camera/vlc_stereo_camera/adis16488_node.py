@@ -7,10 +7,11 @@ parameters of :mod:`vlc_stereo_camera.rig_params`) and adds the datasheet errors
 Publications
 ------------
 ``imu/data_raw`` (sensor_msgs/Imu, ``qos_profile_sensor_data``)
-    Sample n stamped exactly epoch + n / rate_hz; angular rate (rad/s) and specific
-    force (m/s², +9.81 on z at rest) in ``imu_frame_id`` (axes of base_link); covariance
-    diagonals = white-noise variance per sample; orientation absent
-    (``orientation_covariance[0] = -1``).
+    Sample n stamped exactly epoch + n / rate_hz (sensor faults aside, below); angular
+    rate (rad/s) and specific force (m/s², +9.81 on z at rest) in ``imu_frame_id`` (axes
+    of base_link); covariance diagonals = white-noise variance per sample; orientation
+    absent (``orientation_covariance[0] = -1``). With ``imu_burst_s`` the history depth
+    is raised to a burst's size.
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10)
     1 Hz (wall clock) status: samples published, simulated time, lag behind the pacing
     target, current bias.
@@ -26,7 +27,31 @@ own. With ``follow_clock`` false samples are paced to the wall clock by
 subscribers. Invalid parameters fail at start-up with a message and exit code 2 (as
 ``stereo_camera_node``). Parameters: ``config/adis16488_node.yaml`` and the shared
 ``config/rig.yaml``.
+
+Sensor faults (shared rig parameters, :mod:`.core.sensor_faults`; every default off, and
+off the node publishes exactly as without them). They act on publication only: every
+sample is computed (the bias processes run on) whether it is published or not, and the
+release follows the sample's *true* time t = n / rate_hz.
+
+* ``imu_dropouts_s`` [start_s, duration_s, ...]: samples with start_s ≤ t <
+  start_s + duration_s are not published (lost, not delayed).
+* ``imu_burst_s`` B > 0: samples are held and published back to back, each with its own
+  stamp, at the burst boundaries k·B: the burst at k·B holds the samples of
+  [(k−1)·B, k·B). Following ``/clock`` a burst leaves at the first tick at or after its
+  boundary (several at once after a stall of the camera); self-paced, when the node's
+  simulated time reaches the boundary. With ``duration_s`` the samples still held at the
+  end leave as a last, shorter burst. The publisher keeps a history as deep as a burst,
+  so the node itself never drops a sample of one; a subscriber whose (best-effort) queue
+  is shorter than a burst can still lose its oldest samples in DDS.
+* ``imu_stamp_offset_s`` d: every stamp is d later (IMU clock offset); the release still
+  waits for ``/clock`` to reach the true time.
+* ``sensor_clock_jumps_s`` [at_s, jump_s, ...]: samples with t ≥ at_s are stamped
+  Σ jump_s later (the sensor host's clock stepped, cumulative, negative = back).
+
+Published stamp = epoch + t + Σ_{at_s ≤ t} jump_s + d. Diagnostics then also report
+``samples_dropped`` (by a dropout window) and ``samples_held`` (waiting for a burst).
 """
+from collections import deque
 from dataclasses import dataclass
 import math
 import sys
@@ -36,7 +61,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rcl_interfaces.msg import ParameterType
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu
@@ -187,6 +212,9 @@ class Adis16488Node(Node):
         self._sampler = ImuSampler(cfg.scenario.trajectory(), model, mount.position_m,
                                    mount.R_base_imu if np.any(mount.rpy_rad) else None)
         self._epoch_ns = epoch_to_ns(cfg.scenario.epoch_s)
+        self._faults = cfg.scenario.sensor_faults()
+        self._held = deque()        # (release_ns, stamp_ns, omega, f) waiting for a burst
+        self._dropped = 0
         # One message refilled per sample: frame and covariances never change.
         self._msg = imu_message(self._epoch_ns, cfg.imu_frame_id, (0.0, 0.0, 0.0),
                                 (0.0, 0.0, 0.0), model.gyro_white_variance,
@@ -206,7 +234,14 @@ class Adis16488Node(Node):
         self._last_stamp_ns = None
         self._wall_start = None
 
-        self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos_profile_sensor_data)
+        qos = qos_profile_sensor_data
+        burst_samples = self._faults.imu_burst_samples(cfg.rate_hz)
+        if burst_samples > qos.depth:
+            # a history as deep as a burst: the node never overwrites a sample of a burst
+            # before the middleware has sent it
+            qos = QoSProfile(history=qos.history, depth=burst_samples,
+                             reliability=qos.reliability, durability=qos.durability)
+        self._imu_pub = self.create_publisher(Imu, 'imu/data_raw', qos)
         self._diag_pub = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self._clock_ns = None       # newest /clock received (follow_clock)
         if cfg.follow_clock:
@@ -221,6 +256,8 @@ class Adis16488Node(Node):
             f'{cfg.imu_frame_id}, seed {cfg.scenario.seed}, motion '
             f'{cfg.scenario.motion_profile}, realtime factor {cfg.realtime_factor:g}, '
             f'errors {"on" if cfg.noise_enabled else "off"}')
+        if self._faults.imu_faults:
+            self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
 
     def _due_count(self):
         """Samples to publish this tick and the pacing lag in simulated seconds."""
@@ -279,8 +316,12 @@ class Adis16488Node(Node):
             self._buffer_pos += take
             self._next_index += take
             count -= take
+        if self._faults.imu_burst_ns:
+            self._release_bursts()
         if self._end_index is not None and self._next_index >= self._end_index \
                 and not self.finished.done():
+            while self._held:           # the last, shorter burst
+                self._publish_sample(*self._held.popleft()[1:])
             if self._timer is not None:
                 self._timer.cancel()
             self.get_logger().info(f'duration_s reached: {self._published} samples published')
@@ -301,13 +342,43 @@ class Adis16488Node(Node):
         rows = slice(start, start + count)
         omega, f = batch.omega[rows].tolist(), batch.f[rows].tolist()
         valid = batch.valid[rows].tolist()
+        faults = self._faults if self._faults.imu_faults else None
         for i, n in enumerate(batch.index[rows].tolist()):
             if not valid[i]:
                 continue
             stamp_ns = sample_stamp_ns(self._epoch_ns, n, rate_hz)
-            self._imu_pub.publish(set_imu_sample(self._msg, stamp_ns, omega[i], f[i]))
-            self._last_stamp_ns = stamp_ns
-            self._published += 1
+            if faults is not None:
+                t_ns = stamp_ns - self._epoch_ns          # the sample's true time
+                if faults.imu_dropped(t_ns):
+                    self._dropped += 1
+                    continue
+                stamp_ns = faults.imu_stamp_ns(stamp_ns, t_ns)
+                if faults.imu_burst_ns:
+                    self._held.append((faults.imu_release_ns(t_ns), stamp_ns, omega[i], f[i]))
+                    continue
+            self._publish_sample(stamp_ns, omega[i], f[i])
+
+    def _publish_sample(self, stamp_ns, omega, f):
+        self._imu_pub.publish(set_imu_sample(self._msg, stamp_ns, omega, f))
+        self._last_stamp_ns = stamp_ns
+        self._published += 1
+
+    def _release_bursts(self):
+        """Publish, back to back, every held sample whose burst boundary has been reached:
+        by the /clock (follow_clock), else by the newest sample generated.
+        """
+        if self.config.follow_clock:
+            if self._clock_ns is None:
+                return
+            now_ns = self._clock_ns - self._epoch_ns
+        elif self._next_index > 0:
+            now_ns = sample_stamp_ns(self._epoch_ns, self._next_index - 1,
+                                     self.config.rate_hz) - self._epoch_ns
+        else:
+            return
+        held = self._held
+        while held and held[0][0] <= now_ns:
+            self._publish_sample(*held.popleft()[1:])
 
     def _publish_diagnostics(self):
         cfg = self.config
@@ -332,6 +403,9 @@ class Adis16488Node(Node):
             'gyro_bias_dps': ' '.join(f'{b / DEG:.5f}' for b in bias[:3]),
             'accel_bias_mg': ' '.join(f'{b / GRAVITY_MPS2 * 1e3:.3f}' for b in bias[3:]),
         }
+        if self._faults.imu_faults:
+            values['samples_dropped'] = str(self._dropped)
+            values['samples_held'] = str(len(self._held))
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         # Stamped on the simulated clock, like the samples it reports on.

@@ -27,6 +27,11 @@ subscribers), like ``adis16488_node``. ``duration_s`` > 0: samples with t < dura
 are published, then the node exits 0. Invalid parameters: ``[FATAL] invalid
 parameter: …`` and exit code 2. Parameters: ``config/photodiode_node.yaml`` and the
 shared ``config/rig.yaml``.
+
+Sensor faults (shared rig parameters, :mod:`.core.sensor_faults`): of them only
+``sensor_clock_jumps_s`` [at_s, jump_s, ...] acts on the photodiode: samples with
+t ≥ at_s are stamped Σ jump_s later (the sensor host's clock stepped; cumulative,
+negative = back); their content and release are unchanged. Default: none.
 """
 from dataclasses import dataclass
 import math
@@ -158,6 +163,7 @@ class PhotodiodeNode(Node):
         self._pd = Photodiode(cfg.photodiode, lamp_map, cfg.scenario.trajectory(),
                               seed=cfg.scenario.seed, subsamples=cfg.subsamples)
         self._epoch_ns = epoch_to_ns(cfg.scenario.epoch_s)
+        self._faults = cfg.scenario.sensor_faults()
         self._next_index = None          # next sample to publish; None until time starts
         self._end_index = (math.ceil(cfg.duration_s * cfg.rate_hz - 1e-9)
                            if cfg.duration_s > 0.0 else None)
@@ -220,6 +226,7 @@ class PhotodiodeNode(Node):
             n = self._next_index
             sample = self._pd.sample(n, cfg.rate_hz)
             stamp_ns = sample_stamp_ns(self._epoch_ns, n, cfg.rate_hz)
+            stamp_ns = self._faults.sensor_stamp_ns(stamp_ns, stamp_ns - self._epoch_ns)
             header = Header(stamp=ns_to_stamp(stamp_ns), frame_id=cfg.frame_id)
             self._pub.publish(records_to_cloud(sample_records(sample), header))
             self._published += 1

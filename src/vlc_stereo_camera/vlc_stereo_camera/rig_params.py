@@ -8,16 +8,27 @@ the IMU samples describe one motion. Pass ``config/rig.yaml`` to both.
 default, along map x) or a named curved alignment such as ``curved_demo``; the rig's
 lamp map must be the alignment's (``lamp_map_path`` = ``lamp_map_<alignment>.yaml``,
 see :meth:`ScenarioConfig.default_lamp_map_path`).
+
+The sensor-fault parameters (``imu_dropouts_s``, ``camera_dropouts_s``, ``imu_burst_s``,
+``imu_stamp_offset_s``, ``sensor_clock_jumps_s``; every default off) are scenario
+parameters too, so every rig node has them and one ``rig.yaml`` gives the whole rig one
+fault schedule (:class:`~vlc_stereo_camera.core.sensor_faults.SensorFaults`, semantics
+there). They act at publication time only: the physics is the same with and without.
 """
 from dataclasses import dataclass
 
 from rcl_interfaces.msg import ParameterType
+from rclpy.parameter import Parameter
 
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.lamp_map import default_lamp_map_path
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.stamps import epoch_to_ns
+from vlc_stereo_camera.core.sensor_faults import SensorFaults
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
+
+_ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 
 SCENARIO_PARAMETERS = (
     # name, default, descriptor
@@ -43,7 +54,31 @@ SCENARIO_PARAMETERS = (
     ('alignment', 'straight', _desc('Track alignment: ' + ', '.join(NAMED_ALIGNMENTS)
                                     + ' (straight = along map x).',
                                     ptype=ParameterType.PARAMETER_STRING)),
+    # --- sensor faults (core/sensor_faults.py), applied at publication; default off ---
+    ('imu_dropouts_s', [], _desc('IMU samples lost: flat pairs [start_s, duration_s, ...] '
+                                 'of simulated time; samples with start_s <= t < start_s + '
+                                 'duration_s are not published. [] = none.', ptype=_ARRAY)),
+    ('camera_dropouts_s', [], _desc('Camera frames lost: flat pairs [start_s, duration_s, '
+                                    '...]; frames with t0 in a window publish no image and '
+                                    'no camera_info (truth and /clock go on). [] = none.',
+                                    ptype=_ARRAY)),
+    ('imu_burst_s', 0.0, _desc('IMU samples held and published in bursts at every '
+                               'multiple of this much simulated time, s; 0 = off.',
+                               0.0, 60.0)),
+    ('imu_stamp_offset_s', 0.0, _desc('Added to every IMU stamp (IMU clock offset from the '
+                                      "camera's), s; release still at the true time.",
+                                      -3600.0, 3600.0)),
+    ('sensor_clock_jumps_s', [], _desc('Steps of the sensor clock: flat pairs [at_s, '
+                                       'jump_s, ...]; every sensor and truth stamp of '
+                                       'simulated time t >= at_s is jump_s later '
+                                       '(cumulative, negative = back); /clock is not '
+                                       'stepped. [] = none.', ptype=_ARRAY)),
 )
+
+#: Scenario parameters declared as DOUBLE_ARRAY with no value (rclpy infers no type
+#: from ``[]``); unset means empty.
+_EMPTY_ARRAYS = {name for name, default, d in SCENARIO_PARAMETERS
+                 if default == [] and d.type == _ARRAY}
 
 
 @dataclass
@@ -61,6 +96,11 @@ class ScenarioConfig:
     vibration_scale: float
     alignment: str = 'straight'
     vehicle_path: str = ''
+    imu_dropouts_s: tuple = ()
+    camera_dropouts_s: tuple = ()
+    imu_burst_s: float = 0.0
+    imu_stamp_offset_s: float = 0.0
+    sensor_clock_jumps_s: tuple = ()
 
     def vehicle(self):
         """The VehicleMount the rig's sensors sit on (VehicleFileError if unusable)."""
@@ -85,10 +125,35 @@ class ScenarioConfig:
                                               scale=self.vibration_scale), seed=self.seed)
         return Trajectory(profile, vibration, self.track_alignment())
 
+    def sensor_faults(self):
+        """The SensorFaults these parameters describe (raises ValueError if invalid)."""
+        faults = SensorFaults.from_parameters(
+            imu_dropouts_s=self.imu_dropouts_s, camera_dropouts_s=self.camera_dropouts_s,
+            imu_burst_s=self.imu_burst_s, imu_stamp_offset_s=self.imu_stamp_offset_s,
+            sensor_clock_jumps_s=self.sensor_clock_jumps_s)
+        faults.check_epoch(epoch_to_ns(self.epoch_s))
+        return faults
+
 
 def declare_scenario_parameters(node):
-    """Declare the shared scenario parameters on ``node`` and return a ScenarioConfig."""
+    """Declare the shared scenario parameters on ``node`` and return a ScenarioConfig.
+
+    Raises
+    ------
+    rclpy.exceptions.ParameterException
+        A value has the wrong type (the fault lists take floats: ``[1.0, 0.5]``) or is
+        out of its declared range.
+    ValueError
+        The sensor-fault schedule is invalid (:meth:`ScenarioConfig.sensor_faults`).
+    """
+    values = {}
     for name, default, descriptor in SCENARIO_PARAMETERS:
-        node.declare_parameter(name, default, descriptor)
-    values = {name: node.get_parameter(name).value for name, _, _ in SCENARIO_PARAMETERS}
-    return ScenarioConfig(**values)
+        if name in _EMPTY_ARRAYS:
+            # unset (no override, or [] in a parameter file) = empty
+            value = node.declare_parameter(name, Parameter.Type.DOUBLE_ARRAY, descriptor).value
+            values[name] = tuple(float(v) for v in value or ())
+        else:
+            values[name] = node.declare_parameter(name, default, descriptor).value
+    config = ScenarioConfig(**values)
+    config.sensor_faults()          # validate at start-up, in every rig node
+    return config

@@ -30,6 +30,25 @@ topics have N subscribers (recordings and tests that need frame 0). Invalid para
 fail at start-up with a message and exit code 2. OpenCV runs single-threaded
 (``cv2.setNumThreads(1)``): the renderer is sized for one core, and the other nodes of
 the graph need the rest.
+
+Sensor faults (shared rig parameters, :mod:`.core.sensor_faults`; every default off, and
+off the node publishes exactly as without them). They act on publication only: every
+frame is rendered and the pacing and ``/clock`` run on unchanged.
+
+* ``camera_dropouts_s`` [start_s, duration_s, ...]: a frame whose t0 (start of row-0
+  exposure, simulated seconds since the start) lies in a window [start_s,
+  start_s + duration_s) publishes no image and no camera_info on either side;
+  ``ground_truth/pose``, ``ground_truth/odometry``, ``ground_truth/spots`` and
+  ``/clock`` go on (the truth stays continuous).
+* ``sensor_clock_jumps_s`` [at_s, jump_s, ...]: the images, camera_info and the
+  ground truth of frames with t0 ≥ at_s are stamped Σ jump_s later (the sensor host's
+  clock stepped; cumulative, negative = back, when stamps repeat). ``/clock`` is not
+  stepped: the truth is stamped in the (stepped) sensor time, so "truth at a pose's
+  stamp" stays meaningful within a segment; a consumer separates the segments of a
+  backward jump by the recording (receive) time.
+
+Published frame stamp = epoch + t0 + Σ_{at_s ≤ t0} jump_s. Diagnostics then also report
+``frames_dropped``.
 """
 from dataclasses import dataclass
 import queue
@@ -240,6 +259,9 @@ class StereoCameraNode(Node):
         self._lamps_in_view = 0
         self._lag_s = 0.0
         self._sim_ns = conversions.stamp_ns(self.scenario.epoch_s)
+        self._epoch_ns = self._sim_ns
+        self._faults = self.scenario.sensor_faults()
+        self._frames_dropped = 0
         self._done_guard = self.create_guard_condition(self._on_done)
         self.create_timer(1.0, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -251,6 +273,8 @@ class StereoCameraNode(Node):
             f'rendering {cfg.image_width}x{cfg.image_height} stereo at {cfg.fps} fps, '
             f'realtime_factor {cfg.realtime_factor}, {len(lamp_map)} lamps, '
             f'motion {self.scenario.motion_profile}, seed {self.scenario.seed}')
+        if self._faults.camera_faults:
+            self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
 
     # ------------------------------------------------------------ worker threads
     def _render_loop(self):
@@ -356,12 +380,20 @@ class StereoCameraNode(Node):
     def _publish_frame(self, frame):
         cfg = self.config
         ns = conversions.stamp_ns(self.scenario.epoch_s, frame.t0_s)
+        dropped = False
+        if self._faults.camera_faults:
+            t_ns = ns - self._epoch_ns          # the frame's true time
+            dropped = self._faults.camera_dropped(t_ns)
+            ns = self._faults.sensor_stamp_ns(ns, t_ns)
         left_hdr = conversions.header(ns, cfg.left_frame_id)
         right_hdr = conversions.header(ns, cfg.right_frame_id)
-        self.pub_images[0].publish(conversions.image_msg(frame.left, left_hdr))
-        self.pub_images[1].publish(conversions.image_msg(frame.right, right_hdr))
-        self.pub_infos[0].publish(conversions.camera_info_msg(self._infos[0], left_hdr))
-        self.pub_infos[1].publish(conversions.camera_info_msg(self._infos[1], right_hdr))
+        if dropped:
+            self._frames_dropped += 1
+        else:
+            self.pub_images[0].publish(conversions.image_msg(frame.left, left_hdr))
+            self.pub_images[1].publish(conversions.image_msg(frame.right, right_hdr))
+            self.pub_infos[0].publish(conversions.camera_info_msg(self._infos[0], left_hdr))
+            self.pub_infos[1].publish(conversions.camera_info_msg(self._infos[1], right_hdr))
         map_hdr = conversions.header(ns, cfg.map_frame_id)
         self.pub_pose.publish(conversions.pose_msg(frame.base_position_m, frame.base_quat_xyzw,
                                                    map_hdr))
@@ -392,6 +424,8 @@ class StereoCameraNode(Node):
                   'render_ms_max': f'{np.max(render_ms):.2f}' if render_ms else 'nan',
                   'lamps_in_view': str(lamps),
                   'lag_behind_realtime_s': f'{self._lag_s:.3f}'}
+        if self._faults.camera_faults:
+            values['frames_dropped'] = str(self._frames_dropped)
         status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
         self.pub_diag.publish(DiagnosticArray(header=conversions.header(self._sim_ns, ''),
                                               status=[status]))
