@@ -35,6 +35,8 @@ def _nodes(tmp_path):
         ('vlc_bags', 'bag_recorder', {'output': str(tmp_path / 'bag'),
                                       'topics': ['imu/data_raw']}),
         ('vlc_bags', 'bag_player', {'bag': str(SAMPLE_BAG), 'loop': True, 'rate': 0.5}),
+        # idle here (its first injection an hour away): only its stop is tested
+        ('vlc_evaluation', 'fault_injector_node', {'start_s': 3600.0}),
     ]
 
 
