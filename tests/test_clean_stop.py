@@ -47,6 +47,8 @@ def _nodes(tmp_path):
         ('vlc_bags', 'bag_player', {'bag': str(SAMPLE_BAG), 'loop': True, 'rate': 0.5}),
         ('vlc_camera_input', 'sbs_splitter_node', {'calibration_files': _calibration(tmp_path)}),
         ('vlc_view', 'marker_node', {}),
+        # idle here (its first injection an hour away): only its stop is tested
+        ('vlc_evaluation', 'fault_injector_node', {'start_s': 3600.0}),
     ]
 
 

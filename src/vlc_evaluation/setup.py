@@ -1,4 +1,6 @@
 
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = 'vlc_evaluation'
@@ -10,6 +12,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -36,6 +39,7 @@ setup(
             'render_demo_images = vlc_evaluation.demo_images:main',
             'sample_bag = vlc_evaluation.sample_bag:main',
             'sbs_bag = vlc_evaluation.sbs_bag:main',
+            'fault_injector_node = vlc_evaluation.fault_injector_node:main',
         ],
     },
 )

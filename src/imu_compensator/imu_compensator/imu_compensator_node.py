@@ -28,8 +28,13 @@ Publications
 
 Bad input (non-finite values, duplicate or out-of-order stamps, a time jump backwards,
 gaps) is counted, warned about (throttled) and skipped or handled as described in
-:mod:`imu_compensator.core.compensator`; it never stops the node. Parameters:
-``config/imu_compensator_node.yaml``.
+:mod:`imu_compensator.core.compensator`; it never stops the node. Before that, a sample
+stamped more than ``backward_reset_s`` before or ``forward_jump_s`` after the newest one
+is held (:class:`vlc_common.core.stamp_guard.StampGuard`): alone (a 1970 or far-future
+stamp) it is dropped and counted, and neither resets the filter nor propagates it across
+a gap of decades; ``time_base_confirm_count`` consecutive samples of a new time base (a
+looped bag, a restarted IMU) are handed on, and a jump back then resets the filter as
+before. Parameters: ``config/imu_compensator_node.yaml``.
 """
 from dataclasses import dataclass
 import math
@@ -49,10 +54,12 @@ from imu_compensator.core.attitude_filter import AttitudeFilterConfig
 from imu_compensator.core.compensator import AttitudeCompensator, CompensatorConfig, SampleStatus
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
+from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.polled import PolledSubscription
 from vlc_common.process import run_node
+from vlc_common.stamps import stamp_to_ns
 from vlc_common.throttled_log import ThrottledWarnings
 
 DEG = math.pi / 180.0
@@ -143,6 +150,12 @@ NODE_PARAMETERS = (
     ('backward_reset_s', _C.backward_reset_s,
      _desc('A stamp this much older than the newest resets the filter; less is dropped as '
            'out of order, s.', 1e-4, 1e6)),
+    ('forward_jump_s', 1.0, _desc('A sample stamped more than this after the newest one is '
+                                  'held as a possible outlier, s.', 0.0, 3600.0)),
+    ('time_base_confirm_count', 3, _desc('Consecutive samples of a new time base (stamped '
+                                         'beyond backward_reset_s before or forward_jump_s '
+                                         'after the newest one) that confirm it; fewer are '
+                                         'outliers, dropped.', 1, 1000, integer=True)),
     ('history_s', _C.history_s, _desc('Attitude history kept for delayed aiding, s.',
                                       0.1, 60.0)),
     ('orientation_std_floor_rad', [0.05 * DEG, 0.05 * DEG, 0.1 * DEG],
@@ -172,6 +185,8 @@ class NodeConfig:
     poll_period_s: float
     diagnostics_period_s: float
     warn_throttle_s: float
+    forward_jump_s: float
+    time_base_confirm_count: int
     compensator: CompensatorConfig
 
 
@@ -235,7 +250,8 @@ def read_config(node):
                                           v['orientation_std_floor_rad'], non_negative=True),
         heading_aiding_std_rad=v['heading_aiding_std_rad'],
         poll_period_s=v['poll_period_s'], diagnostics_period_s=v['diagnostics_period_s'],
-        warn_throttle_s=v['warn_throttle_s'], compensator=comp)
+        warn_throttle_s=v['warn_throttle_s'], forward_jump_s=v['forward_jump_s'],
+        time_base_confirm_count=v['time_base_confirm_count'], compensator=comp)
 
 
 class ImuCompensatorNode(Node):
@@ -257,6 +273,8 @@ class ImuCompensatorNode(Node):
         self._frame_warned = False
         self._warnings = ThrottledWarnings(self.get_logger(), cfg.warn_throttle_s)
         self._last_stamp = None
+        self._guard = StampGuard.from_seconds(cfg.compensator.backward_reset_s,
+                                              cfg.forward_jump_s, cfg.time_base_confirm_count)
         self._diag_count = 0
         self._diag_t0 = None
         self._diag_stats = None
@@ -286,6 +304,20 @@ class ImuCompensatorNode(Node):
             self._on_imu(msg)
 
     def _on_imu(self, msg):
+        """Pass the sample's stamp through the guard; process what it releases."""
+        result = self._guard.push(stamp_to_ns(msg.header.stamp), msg)
+        if result.dropped:
+            self._warnings.warn('stamp_outlier', lambda: f'{len(result.dropped)} IMU sample(s) '
+                                'stamped far from the stream (beyond backward_reset_s before or '
+                                'forward_jump_s after the newest) dropped')
+        if result.rebased:
+            self._warnings.warn('time_base', lambda: f'IMU stamps moved by '
+                                f'{result.rebased * 1e-9:+.3f} s for '
+                                f'{len(result.released)} samples in a row: new time base')
+        for _, sample in result.released:
+            self._process(sample)
+
+    def _process(self, msg):
         cfg = self.config
         if not self._frame_warned and msg.header.frame_id != cfg.imu_frame_id:
             self._frame_warned = True
@@ -344,7 +376,8 @@ class ImuCompensatorNode(Node):
         if self._diag_t0 is not None and now_t is not None and now_t > self._diag_t0:
             rate = self._diag_count / (now_t - self._diag_t0)
         prev = self._diag_stats
-        new_problems = prev is not None and (stats.dropped > prev[0] or stats.gaps > prev[1]
+        dropped = stats.dropped + self._guard.stats.outliers
+        new_problems = prev is not None and (dropped > prev[0] or stats.gaps > prev[1]
                                               or stats.resets > prev[2])
         if now_t is None:
             status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample yet'
@@ -365,7 +398,9 @@ class ImuCompensatorNode(Node):
             'stationary_samples': str(stats.stationary_samples),
             'sample_rate_hz': f'{rate:.1f}',
             'samples_accepted': str(stats.accepted),
-            'samples_dropped': str(stats.dropped),
+            'samples_dropped': str(dropped),
+            'dropped_stamp_outliers': str(self._guard.stats.outliers),
+            'time_base_changes': str(self._guard.stats.rebases),
             'dropped_nonfinite': str(stats.nonfinite),
             'dropped_duplicate': str(stats.duplicate),
             'dropped_out_of_order': str(stats.out_of_order),
@@ -384,7 +419,7 @@ class ImuCompensatorNode(Node):
         self._diag_pub.publish(msg)
         self._diag_t0 = now_t
         self._diag_count = 0
-        self._diag_stats = (stats.dropped, stats.gaps, stats.resets)
+        self._diag_stats = (dropped, stats.gaps, stats.resets)
 
 
 def main(args=None):

@@ -133,6 +133,35 @@ def test_output_is_stamped_with_the_sample_time_and_bad_input_is_skipped(ctx):
         h.close()
 
 
+def test_a_lone_1970_or_future_sample_neither_resets_nor_propagates_the_filter(ctx):
+    """Samples stamped 1970 (sec 0), a year ahead and 5 s back, each alone between real
+    ones: dropped and counted, no reset, no gap; the attitude and its covariance go on
+    as if they had never come.
+    """
+    h = Harness(ctx)
+    try:
+        good = [raw(EPOCH_NS + k * PERIOD_NS, gyro=(0.002, -0.001, 0.0005)) for k in range(60)]
+        lone = [raw(0), raw(EPOCH_NS + 365 * 86400 * 10 ** 9), raw(EPOCH_NS - 5 * 10 ** 9)]
+        mixed = good[:20] + [lone[0]] + good[20:40] + [lone[1]] + good[40:50] + [lone[2]] \
+            + good[50:]
+        h.send(mixed)
+        assert h.spin_until(lambda: len(h.out) >= len(good))
+        assert [stamp_ns(m) for m in h.out] == [stamp_ns(m) for m in good]
+        s = h.node.compensator.stats
+        assert (s.resets, s.gaps, s.dropped) == (0, 0, 0)
+        assert h.node._guard.stats.outliers == 3
+        heading_var = h.out[-1].orientation_covariance[8]
+        # the cold start's (5 deg)^2, not blown up by a propagation across decades
+        assert 0.0 < heading_var < 0.01
+        assert h.spin_until(lambda: any(
+            {kv.key: kv.value for kv in d.status[0].values}.get('dropped_stamp_outliers')
+            == '3' for d in h.diags))
+        values = {kv.key: kv.value for kv in h.diags[-1].status[0].values}
+        assert values['samples_dropped'] == '3' and values['resets'] == '0'
+    finally:
+        h.close()
+
+
 def aid(stamp_ns, quat, cov3=None, yaw_var=0.0):
     msg = PoseWithCovarianceStamped()
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)

@@ -7,7 +7,10 @@ Subscribes (relative names):
   and right are paired by identical stamps.
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
   reliable, transient local, depth 1): the rectified geometry (P matrices, right
-  ``P[0,3] = −fx·b``). Images are skipped until both have arrived.
+  ``P[0,3] = −fx·b``). Images are skipped until both have arrived. The last good one of
+  each camera is kept (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one
+  (zero or NaN K/P) is refused with a throttled warning, a different valid one (another
+  size) is taken only once it came three times in a row.
 * ``train/odometry`` (nav_msgs/Odometry; reliable, depth 10): train speed for the
   exposure blur (|twist.linear|). Without a recent one the ``assumed_speed_mps``
   parameter is used.
@@ -23,15 +26,18 @@ Publishes:
 
 One thread: the image callback that completes a stereo pair processes it at once, as
 the decoder does (a worker thread fed from a queue added a hand-over delay before every
-pair's processing: docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty or
-truncated image, left/right size mismatch, unpaired or out-of-order stamps) gives a
-throttled warning and is skipped.
+pair's processing: docs/arch/spot_locator.md "Queues"). Bad input (unknown encoding, empty,
+truncated or inconsistent image, left/right size mismatch, images of another size than
+camera_info's, unpaired or out-of-order stamps) gives a throttled warning and is skipped.
 
 State: only the stereo pairing (images waiting for their partner, the newest paired
 stamp) and the latest odometry speed (aged by receipt time); the locator itself keeps
-nothing between frames. A stamp more than ``backward_reset_s`` older than the newest
-paired one (a looped bag replay, a restarted camera) clears the pairing state with a
-throttled warning, so the replay is processed instead of being dropped as out of order.
+nothing between frames. An image stamped more than ``backward_reset_s`` before or
+``forward_jump_s`` after the newest one is held: alone (a 1970 or far-future stamp) it is
+dropped as an outlier and counted; ``time_base_confirm_count`` consecutive images of a new
+time base more than ``backward_reset_s`` back (a looped bag replay, a restarted camera)
+clear the pairing state with a throttled warning and are processed, so the replay is not
+dropped as out of order.
 """
 from collections import deque
 from dataclasses import dataclass
@@ -53,6 +59,7 @@ from spot_locator.core.centres import ChordConfig
 from spot_locator.core.detection import DetectConfig
 from spot_locator.core.locator import ECCENTRICITY_MODES, METHODS, LocatorConfig, SpotLocator
 from spot_locator.core.matching import MatchConfig
+from vlc_common.camera_info import CameraInfoKeeper
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
@@ -121,10 +128,16 @@ NODE_PARAMETERS = (
     ('max_area_ratio', 2.0, _desc('Matching: largest spot area ratio.', 1.0, 100.0)),
     ('max_pending_stamps', 10, _desc('Unpaired images kept per side while waiting for the '
                                      'other side.', 1, 1000, integer=True)),
-    ('backward_reset_s', 1.0, _desc('An image stamp this much older than the newest paired '
-                                    'one (a looped bag replay) resets the stereo pairing; a '
-                                    'smaller step back is dropped as out of order, s.',
-                                    1e-3, 1e6)),
+    ('backward_reset_s', 1.0, _desc('An image stamped more than this before the newest one '
+                                    'is held as a possible outlier; time_base_confirm_count '
+                                    'of them in a row (a looped bag replay) reset the stereo '
+                                    'pairing; a smaller step back is dropped as out of '
+                                    'order, s.', 1e-3, 1e6)),
+    ('forward_jump_s', 1.0, _desc('An image stamped more than this after the newest one is '
+                                  'held as a possible outlier, s.', 0.0, 3600.0)),
+    ('time_base_confirm_count', 3, _desc('Consecutive images of a new time base that confirm '
+                                         'it; fewer are outliers, dropped.', 1, 1000,
+                                         integer=True)),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.',
                                         0.05, 3600.0)),
     ('warm_up', True, _desc('Run a synthetic stereo pair through the whole pipeline before '
@@ -166,6 +179,8 @@ class SpotLocatorNodeConfig:
     max_area_ratio: float
     max_pending_stamps: int
     backward_reset_s: float
+    forward_jump_s: float
+    time_base_confirm_count: int
     diagnostics_period_s: float
     warm_up: bool
 
@@ -215,10 +230,12 @@ class SpotLocatorNode(Node):
         self.locator_config = cfg.locator_config()
         # (StereoGeometry, SpotLocator) of the latest usable camera_info pair
         self._located = None
-        self._infos = [None, None]
+        self._infos = CameraInfoKeeper()
 
         self._pairing = StereoPairing(cfg.max_pending_stamps,
-                                      int(round(cfg.backward_reset_s * 1e9)))
+                                      int(round(cfg.backward_reset_s * 1e9)),
+                                      int(round(cfg.forward_jump_s * 1e9)),
+                                      cfg.time_base_confirm_count)
         self._speed = (cfg.assumed_speed_mps, -np.inf)
         self._stats = dict(frames=0, pairs=0, bad_image=0, no_camera_info=0,
                            size_mismatch=0, failed=0, unmatched=0, border=0)
@@ -259,11 +276,20 @@ class SpotLocatorNode(Node):
         self._stats[key] += n
 
     def _on_info(self, index, msg):
-        self._infos[index] = msg
-        if self._infos[0] is None or self._infos[1] is None:
+        outcome, reason = self._infos.update(index, msg)
+        side = ('left', 'right')[index]
+        if outcome == CameraInfoKeeper.REFUSED:
+            self._warn(f'camera_info_refused_{side}', f'{side} camera_info refused, the last '
+                       f'good one kept: {reason}')
+            return
+        if outcome == CameraInfoKeeper.PENDING:
+            self._warn(f'camera_info_pending_{side}', f'{side} camera_info {reason}')
+            return
+        both = self._infos.both()
+        if both is None:
             return
         try:
-            geometry = conversions.stereo_geometry(*self._infos)
+            geometry = conversions.stereo_geometry(*both)
         except ValueError as exc:
             self._warn('camera_info', f'camera_info unusable, keeping the previous geometry: {exc}')
             return
@@ -286,13 +312,18 @@ class SpotLocatorNode(Node):
         arrivals = [(index, msg)] + [(side, m) for side, sub in enumerate(self._image_subs)
                                      for m in take_pending(sub)]
         for side, image in arrivals:
-            event = self._pairing.add(side, stamp_to_ns(image.header.stamp), image)
-            if event == 'reset':
-                self._warn('stamp_reset', 'image stamps jumped back by more than '
-                           'backward_reset_s; stereo pairing reset')
-            elif event == 'out_of_order':
-                self._warn('out_of_order', 'an image stamp is not newer than the last paired '
-                           'stamp; skipped')
+            for event in self._pairing.add(side, stamp_to_ns(image.header.stamp), image):
+                if event == 'reset':
+                    self._warn('stamp_reset', 'image stamps jumped back by more than '
+                               'backward_reset_s for time_base_confirm_count images; stereo '
+                               'pairing reset')
+                elif event == 'out_of_order':
+                    self._warn('out_of_order', 'an image stamp is not newer than the last '
+                               'paired stamp; skipped')
+                elif event == 'outlier':
+                    self._warn('stamp_outlier', 'an image stamped far from the stream (beyond '
+                               'backward_reset_s before or forward_jump_s after the newest) '
+                               'dropped')
         pair = self._pairing.newest_pair()
         if pair is None:
             return
@@ -347,7 +378,7 @@ class SpotLocatorNode(Node):
         stats = dict(self._stats, **vars(self._pairing.stats))
         proc = np.array(self._proc_ms)
         skipped = (stats['bad_image'] + stats['size_mismatch'] + stats['out_of_order']
-                   + stats['no_camera_info'] + stats['superseded'])
+                   + stats['no_camera_info'] + stats['superseded'] + stats['stamp_outliers'])
         status = DiagnosticStatus(name=f'{self.get_name()}: spots', hardware_id='stereo_camera',
                                   level=DiagnosticStatus.OK, message='locating spots')
         if self._located is None:
@@ -356,6 +387,8 @@ class SpotLocatorNode(Node):
             status.level = DiagnosticStatus.WARN
             status.message = 'some images skipped or unpaired'
         values = dict(stats)
+        values['camera_info_refused'] = self._infos.refused
+        values['camera_info_ignored'] = self._infos.ignored
         values['processing_ms_median'] = f'{np.median(proc):.2f}' if proc.size else 'nan'
         values['processing_ms_max'] = f'{proc.max():.2f}' if proc.size else 'nan'
         values['speed_mps'] = f'{self._speed[0]:.3f}'

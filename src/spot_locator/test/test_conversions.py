@@ -31,6 +31,36 @@ def test_stereo_geometry_from_camera_info():
         conversions.stereo_geometry(_info(0.0), bad)
 
 
+def test_stereo_geometry_refuses_zero_and_nan_projections():
+    """The fault injector's camera_info kinds: all-zero P, NaN in P (the node keeps the
+    last good pair before it gets here: vlc_common.camera_info).
+    """
+    zero = _info(0.0)
+    zero.p = [0.0] * 12
+    with pytest.raises(ValueError, match='focal length'):
+        conversions.stereo_geometry(zero, zero)
+    for index in (2, 3):                   # cx, and the right camera's -fx*b
+        nan = _info(-124.8)
+        nan.p[index] = float('nan')
+        with pytest.raises(ValueError):
+            conversions.stereo_geometry(_info(0.0), nan)
+
+
+@pytest.mark.parametrize('fields', [
+    dict(encoding='rgb8', step=64), dict(encoding='bayer_rggb8'), dict(encoding='nonsense'),
+    dict(width=72, step=72), dict(height=47), dict(step=63), dict(data=bytes(64 * 24)),
+    dict(width=0, height=0, step=0, data=b''),
+], ids=['rgb8_mono_data', 'bayer_rggb8', 'nonsense', 'width_mismatch', 'height_mismatch',
+        'step_too_small', 'truncated', 'empty'])
+def test_malformed_images_raise_value_error(fields):
+    from sensor_msgs.msg import Image
+    msg = Image(width=64, height=48, encoding='mono8', step=64, data=bytes(64 * 48))
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    with pytest.raises(ValueError):
+        conversions.image_to_array(msg)
+
+
 def test_pair_cloud_round_trip_with_named_fields():
     pair = SpotPair(uv_left=np.array([700.25, 300.5]), uv_right=np.array([680.0, 300.5]),
                     sigma_left=np.array([0.01, 0.05]), sigma_right=np.array([0.02, 0.05]),

@@ -195,24 +195,31 @@ def test_node_survives_bad_input_and_reports_it(harness):
     truncated.data = truncated.data[:10]
     h.pub_spots.publish(truncated)
     h.spin_until(lambda: False, 0.2)
-    # A lone sample from 1970 is held, then dropped: it moves nothing.
-    lone = imu_msg(events[0][2])
-    lone.header.stamp = conversions.ns_to_stamp(1_000_000_000)
-    h.pub_imu.publish(lone)
-    h.spin_until(lambda: False, 0.2)
-    assert loc.initialized and loc.time_base.counters.dropped == 0
-    # The sensor clock goes back by 10 s for good (agreeing samples): reset, position lost
-    # until a confirmed lamp.
+    # One sample stamped 1970 and one a year ahead: dropped as outliers, nothing reset.
+    for k, stamp in enumerate((0, last + 365 * 86400 * 10 ** 9)):
+        lone = imu_msg(last_imu)
+        lone.header.stamp = conversions.ns_to_stamp(stamp)
+        h.pub_imu.publish(lone)
+        h.spin_until(lambda: False, 0.1)
+        msg = imu_msg(last_imu)
+        msg.header.stamp = conversions.ns_to_stamp(last + (25 + k) * 2_500_000)
+        h.send_imu(msg)
+    assert loc.initialized and loc.monitor.counters.time_resets == 0
+    assert h.node._stamp_guards['imu/data'].stats.outliers == 2
+    # The sensor clock goes back by 10 s for good: the node's guard hands the samples on
+    # after three, the localizer resets after ten: position lost until a confirmed lamp.
     for k in range(12):
         back = imu_msg(events[0][2])
         back.header.stamp = conversions.ns_to_stamp(last - 10_000_000_000 + k * 2_500_000)
         h.pub_imu.publish(back)
     assert h.spin_until(lambda: loc.monitor.counters.time_resets == 1)
-    assert not loc.initialized and loc.time_base.counters.dropped == 1
+    assert not loc.initialized
     n_diag = len(h.got['diag'])
     assert h.spin_until(lambda: len(h.got['diag']) > n_diag)
     values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
     assert values['unknown_uid'] == '1' and values['time_resets'] == '1'
+    assert values['dropped_stamp_outliers'] == '2' and values['time_base_changes'] == '1'
+    assert int(values['clouds_refused']) == 2
     assert values['last_unknown_uid'] == '0x7abc'
     assert values['integrity_state'] == 'lost'
 

@@ -19,7 +19,9 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 
+from vlc_common.camera_info import CameraInfoKeeper
 from vlc_common.core.observation import ImuSample
+from vlc_common.core.records import LAMP_DTYPE, PAIR_DTYPE
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 from vlc_common.stamps import ns_to_stamp, stamp_to_ns  # noqa: F401 (re-exported)
 
@@ -32,11 +34,42 @@ def require_fields(records, names, topic):
         raise ValueError(f'{topic}: missing fields {", ".join(missing)}')
 
 
+#: Largest attitude variance taken from ``imu/data`` per axis, rad² (a 1σ of 180°: an
+#: attitude known no better is unknown; larger values, after a long IMU gap or from a
+#: bad message, would only make the fix's normal equations singular).
+MAX_ATTITUDE_VAR_RAD2 = math.pi ** 2
+
+#: The records each cloud topic must carry, and their documented layouts.
+CLOUD_LAYOUTS = {'spots/pairs': PAIR_DTYPE, 'vlc/lamps': LAMP_DTYPE}
+
+
+def records_from_cloud(msg, topic, required=()):
+    """A ``spots/pairs`` or ``vlc/lamps`` cloud → structured array, read with the topic's
+    documented layout (:func:`vlc_common.pointcloud.cloud_to_records`): ValueError, naming
+    the topic and the problem, for a cloud that is not what it says or not the layout.
+    """
+    try:
+        return cloud_to_records(msg, CLOUD_LAYOUTS.get(topic), required)
+    except ValueError as exc:
+        raise ValueError(f'{topic}: {exc}') from exc
+
+
+def _bounded_covariance(cov):
+    """Symmetric part of ``cov`` with its eigenvalues clipped to [0, MAX_ATTITUDE_VAR_RAD2]."""
+    sym = 0.5 * (cov + cov.T)
+    values, vectors = np.linalg.eigh(sym)
+    if np.all((values >= 0.0) & (values <= MAX_ATTITUDE_VAR_RAD2)):
+        return sym
+    return (vectors * np.clip(values, 0.0, MAX_ATTITUDE_VAR_RAD2)) @ vectors.T
+
+
 def imu_from_msg(msg):
     """sensor_msgs/Imu → ImuSample.
 
     ``orientation_covariance[0] == −1`` (REP-145: no orientation) → no attitude; an
-    all-zero covariance (unknown) → attitude without covariance.
+    all-zero covariance (unknown) → attitude without covariance; a covariance with
+    NaN/inf → the sample's attitude is not finite (the localizer skips it as it skips a
+    NaN quaternion); variances beyond :data:`MAX_ATTITUDE_VAR_RAD2` are clipped to it.
     """
     cov = np.asarray(msg.orientation_covariance, dtype=float).reshape(3, 3)
     q = None
@@ -44,8 +77,10 @@ def imu_from_msg(msg):
     if cov[0, 0] != -1.0:
         o = msg.orientation
         q = np.array([o.x, o.y, o.z, o.w])
-        if np.any(cov != 0.0):
-            att_cov = cov
+        if not np.all(np.isfinite(cov)):
+            q = np.full(4, np.nan)
+        elif np.any(cov != 0.0):
+            att_cov = _bounded_covariance(cov)
     a, w = msg.linear_acceleration, msg.angular_velocity
     return ImuSample(stamp_ns=stamp_to_ns(msg.header.stamp), accel_mps2=[a.x, a.y, a.z],
                      gyro_rps=[w.x, w.y, w.z], quat_xyzw=q, attitude_cov_rad2=att_cov)
@@ -73,27 +108,41 @@ def intrinsics_from_camera_info(left, right):
 class CameraInfoIntrinsics:
     """The left and right camera_info of a rectified pair, written into a RigGeometry.
 
-    ``update(index, msg)`` keeps message ``msg`` of camera ``index`` (0 left, 1 right);
-    once both are known their intrinsics and baseline replace the geometry's. Returns a
-    line to log when the geometry changed or the pair is unusable (``(level, text)``,
-    level ``info`` or ``warn``), else None. ``source`` says where the intrinsics came
-    from: ``parameters`` until a usable pair arrived, then ``camera_info``.
+    ``update(index, msg)`` offers message ``msg`` of camera ``index`` (0 left, 1 right)
+    to a :class:`vlc_common.camera_info.CameraInfoKeeper`, which keeps the last good one
+    of each camera (an invalid one is refused, a different valid one taken only once
+    confirmed); once both are kept their intrinsics and baseline replace the geometry's.
+    Returns a line to log when the geometry changed or a message or the pair is unusable
+    (``(level, text)``, level ``info`` or ``warn``), else None. ``source`` says where
+    the intrinsics came from: ``parameters`` until a usable pair arrived, then
+    ``camera_info``.
     """
 
     def __init__(self, geometry, enabled=True):
         self.geometry = geometry
         self.enabled = enabled
-        self.infos = [None, None]
+        self.keeper = CameraInfoKeeper()
         self.source = 'parameters'
+
+    @property
+    def infos(self):
+        """The kept left and right camera_info (None until one came)."""
+        return self.keeper.current
 
     def update(self, index, msg):
         if not self.enabled:
             return None
-        self.infos[index] = msg
-        if self.infos[0] is None or self.infos[1] is None:
+        outcome, reason = self.keeper.update(index, msg)
+        side = ('left', 'right')[index]
+        if outcome == CameraInfoKeeper.REFUSED:
+            return 'warn', f'{side} camera_info refused, the last good one kept: {reason}'
+        if outcome == CameraInfoKeeper.PENDING:
+            return 'warn', f'{side} camera_info {reason}'
+        both = self.keeper.both()
+        if both is None:
             return None
         try:
-            fx, fy, cx, cy, baseline = intrinsics_from_camera_info(*self.infos)
+            fx, fy, cx, cy, baseline = intrinsics_from_camera_info(*both)
         except ValueError as exc:
             return 'warn', f'camera_info ignored: {exc}'
         g = self.geometry

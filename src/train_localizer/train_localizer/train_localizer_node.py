@@ -26,8 +26,16 @@ Publishes, all stamped with the instant they describe (reliable, depth 10):
   (steady clock): integrity state, counters, processing time per fix.
 
 Everything but message conversion lives in :class:`~train_localizer.core.localizer.Localizer`;
-bad input is logged (throttled per kind) and skipped. Parameters:
-``config/train_localizer_node.yaml``.
+bad input is logged (throttled per kind) and skipped: a cloud that is not what it says or
+not its topic's documented layout (:func:`train_localizer.conversions.records_from_cloud`),
+an invalid camera_info (the last good one is kept, a different valid one taken only once
+it came three times in a row). Each input stream (``imu/data``, ``spots/pairs``,
+``vlc/lamps``) passes a :class:`vlc_common.core.stamp_guard.StampGuard` before the core
+sees it: a message stamped more than ``backward_reset_s`` before or ``forward_jump_s``
+after the newest one of its topic is held, and alone (a 1970 or far-future stamp) it is
+dropped and counted; only ``time_base_confirm_count`` consecutive messages of a new time
+base (a looped bag, a restarted sensor) reach the core, whose own rule then resets it as
+before (and the frame join is cleared). Parameters: ``config/train_localizer_node.yaml``.
 """
 from collections import deque
 import math
@@ -61,6 +69,7 @@ from train_localizer.core.reacquisition import (
 )
 from train_localizer.core.track import Track
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.polled import PolledSubscription
 from vlc_common.process import run_node
@@ -68,6 +77,7 @@ from vlc_common.throttled_log import ThrottledWarnings
 
 _DEG = math.pi / 180.0
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
+LAMP_FIELDS = ('uid',)
 
 # Sensor-data QoS (best effort) with a deep queue: at 400 Hz a 5-sample queue loses
 # samples whenever the process stalls for 12 ms (measured under load).
@@ -152,6 +162,11 @@ PARAMETERS = (
                                      "node's clock advanced by the gap within this; "
                                      'otherwise the chainage is widened by the distance run, '
                                      's.', 1e-3, 60.0)),
+    ('forward_jump_s', 1.0, _desc('A stamp more than this after the newest one of its topic '
+                                  'is held as a possible outlier, s.', 0.0, 3600.0)),
+    ('time_base_confirm_count', 3, _desc('Consecutive messages of a topic with a new time base '
+                                         'that confirm it; fewer are outliers, dropped.',
+                                         1, 1000, integer=True)),
     ('max_speed_mps', 40.0, _desc('Highest possible train speed (cold start), m/s.',
                                   0.1, 200.0)),
     ('init_lookback_s', 0.5, _desc('Unconfirmed observations kept for the cold start, s.',
@@ -209,6 +224,11 @@ class TrainLocalizerNode(Node):
         self._published = 0
         self._last_pose = None
         self._state = None
+        self._stamp_guards = {topic: StampGuard.from_seconds(p['backward_reset_s'],
+                                                       p['forward_jump_s'],
+                                                       p['time_base_confirm_count'])
+                        for topic in ('imu/data', 'spots/pairs', 'vlc/lamps')}
+        self._clouds_refused = 0
 
         estimate_qos = 10
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -315,18 +335,37 @@ class TrainLocalizerNode(Node):
             max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'])
 
     # ------------------------------------------------------------------ inputs
+    def _guarded(self, topic, stamp_ns, item):
+        """[(stamp_ns, item)] to hand on after ``topic``'s StampGuard judged one message."""
+        result = self._stamp_guards[topic].push(stamp_ns, item)
+        if result.dropped:
+            self._warn(f'stamp_outlier:{topic}', lambda: f'{len(result.dropped)} {topic} '
+                       'message(s) stamped far from the stream (beyond backward_reset_s before '
+                       'or forward_jump_s after the newest) dropped')
+        if result.rebased:
+            self._warn(f'time_base:{topic}', lambda: f'{topic} stamps moved by '
+                       f'{result.rebased * 1e-9:+.3f} s for {len(result.released)} messages '
+                       'in a row: new time base')
+            if result.rebased < 0 and topic != 'imu/data':
+                self.joiner.clear()      # frames of the old time base never join the new
+        return result.released
+
     def _on_imu(self, msg, received_ns=None):
         if received_ns is None:
             received_ns = self.get_clock().now().nanoseconds
-        report = self.localizer.add_imu(conversions.imu_from_msg(msg), received_ns)
-        self._publish(report)
+        for _, sample in self._guarded('imu/data', conversions.stamp_to_ns(msg.header.stamp),
+                                       msg):
+            self._publish(self.localizer.add_imu(conversions.imu_from_msg(sample),
+                                                 received_ns))
 
     def _drain(self):
-        """Hand the localizer every IMU sample and camera_info received so far."""
+        """Hand the localizer every IMU sample and camera_info received so far (every
+        camera_info in order: the last one of a batch may be a bad one, which must not
+        hide the good one before it).
+        """
         for index, sub in enumerate(self._info_polled):
-            infos = sub.take_all()
-            if infos:
-                self._on_camera_info(index, infos[-1])
+            for info in sub.take_all():
+                self._on_camera_info(index, info)
         if self._imu_polled is not None:
             msgs = self._imu_polled.take_all()
             if msgs:
@@ -340,11 +379,10 @@ class TrainLocalizerNode(Node):
 
     def _records(self, msg, topic, required=()):
         try:
-            records = conversions.cloud_to_records(msg)
-            conversions.require_fields(records, required, topic)
-            return records
+            return conversions.records_from_cloud(msg, topic, required)
         except ValueError as exc:
-            self._warn('bad_cloud', f'{topic} message skipped: {exc}')
+            self._clouds_refused += 1
+            self._warn(f'bad_cloud:{topic}', f'message skipped: {exc}')
             return None
 
     def _on_spots(self, msg):
@@ -352,14 +390,16 @@ class TrainLocalizerNode(Node):
         if records is not None:
             self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
-            self._process(self.joiner.add_spots(stamp, records, self._now_s()))
+            for stamp_ns, rec in self._guarded('spots/pairs', stamp, records):
+                self._process(self.joiner.add_spots(stamp_ns, rec, self._now_s()))
 
     def _on_lamps(self, msg):
-        records = self._records(msg, 'vlc/lamps')
+        records = self._records(msg, 'vlc/lamps', LAMP_FIELDS)
         if records is not None:
             self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
-            self._process(self.joiner.add_lamps(stamp, records, self._now_s()))
+            for stamp_ns, rec in self._guarded('vlc/lamps', stamp, records):
+                self._process(self.joiner.add_lamps(stamp_ns, rec, self._now_s()))
 
     def _on_curvature(self, msg):
         """A curvature match: chainage and its variance along the track, to the aid."""
@@ -490,6 +530,10 @@ class TrainLocalizerNode(Node):
             'time_resets': c.time_resets,
             'stamps_dropped': self.localizer.time_base.counters.dropped,
             'sensor_stamp_ns': self.localizer.newest_ns or 0,
+            'dropped_stamp_outliers': sum(g.stats.outliers for g in self._stamp_guards.values()),
+            'time_base_changes': sum(g.stats.rebases for g in self._stamp_guards.values()),
+            'clouds_refused': self._clouds_refused,
+            'camera_info_refused': self._intrinsics.keeper.refused,
             'imu_rejected': c.imu_rejected,
             'records_too_old': c.records_too_old,
             'imu_attitude_implausible': c.imu_attitude_implausible,

@@ -50,6 +50,33 @@ def test_bad_images_raise_value_error(msg, text):
         image_to_array(msg)
 
 
+W, H = 64, 48
+
+
+@pytest.mark.parametrize('fields, kind', [
+    # the fault injector's image kinds (vlc_evaluation.fault_kinds), at a small size
+    (dict(encoding='rgb8', step=W, data=bytes(W * H)), 'step'),                # mono data
+    (dict(encoding='bayer_rggb8', step=W, data=bytes(W * H)), 'encoding'),
+    (dict(encoding='nonsense', step=W, data=bytes(W * H)), 'encoding'),
+    (dict(width=W + 8, step=W + 8, data=bytes(W * H)), 'truncated'),          # width
+    (dict(height=H - 1, step=W, data=bytes(W * H)), 'size'),                  # height
+    (dict(step=W - 1, data=bytes(W * H)), 'step'),
+    (dict(step=W, data=bytes(W * H // 2)), 'truncated'),
+    (dict(width=0, height=0, step=0, data=b''), 'empty'),
+], ids=['rgb8_mono_data', 'bayer_rggb8', 'nonsense', 'width_mismatch', 'height_mismatch',
+        'step_too_small', 'truncated', 'empty'])
+def test_every_inconsistent_image_is_refused_with_its_kind(fields, kind):
+    """Data that do not match width, height, step and encoding exactly are refused, never
+    read as another image (a height one row short used to be read as a valid image).
+    """
+    msg = Image(height=H, width=W, encoding='mono8')
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    with pytest.raises(ImageError) as err:
+        image_to_array(msg)
+    assert err.value.kind == kind
+
+
 def test_sixteen_bit_images_reduce_to_their_high_byte_for_mono8():
     img16 = np.array([[0x1234, 0xFF01], [0x00FF, 0x8000]], dtype='<u2')
     out = image_to_array(_image(img16, 'mono16'), mono8=True)

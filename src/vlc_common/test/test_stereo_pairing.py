@@ -6,7 +6,7 @@ MS = 1_000_000
 
 def test_a_pair_is_handed_over_once_both_halves_arrived():
     p = StereoPairing()
-    assert p.add(0, 33 * MS, 'L1') is None and p.newest_pair() is None
+    assert p.add(0, 33 * MS, 'L1') == [] and p.newest_pair() is None
     p.add(1, 33 * MS, 'R1')
     assert p.newest_pair() == (33 * MS, 'L1', 'R1')
     assert p.newest_pair() is None
@@ -28,15 +28,54 @@ def test_a_backlog_collapses_to_the_newest_pair():
     assert p.newest_pair() == (132 * MS, 'L4', 'R4')
 
 
-def test_old_stamps_are_out_of_order_and_a_large_jump_back_restarts():
+def test_old_stamps_are_out_of_order_and_a_sustained_jump_back_restarts():
+    """A looped bag: the first images of the new time base are held until three agree,
+    then the pairing restarts with them (none lost).
+    """
     p = StereoPairing(backward_reset_ns=1000 * MS)
     p.add(0, 2000 * MS, 'L')
     p.add(1, 2000 * MS, 'R')
     assert p.newest_pair()[0] == 2000 * MS
-    assert p.add(0, 1500 * MS, 'old') == 'out_of_order' and p.stats.out_of_order == 1
-    assert p.add(0, 10 * MS, 'looped') == 'reset' and p.stats.stamp_resets == 1
-    p.add(1, 10 * MS, 'looped_right')
+    assert p.add(0, 1500 * MS, 'old') == ['out_of_order'] and p.stats.out_of_order == 1
+    assert p.add(0, 10 * MS, 'looped') == [] and p.newest_pair() is None     # held
+    assert p.add(1, 10 * MS, 'looped_right') == []
+    assert p.add(0, 43 * MS, 'next') == ['reset'] and p.stats.stamp_resets == 1
     assert p.newest_pair() == (10 * MS, 'looped', 'looped_right')
+    assert p.stats.stamp_outliers == 0
+
+
+def test_a_lone_1970_or_future_stamp_is_dropped_and_the_pairing_goes_on():
+    """One image pair stamped 1970 (sec 0), one in 1970 (sec 1), one a year ahead, each
+    between real frames: every one is dropped as an outlier, nothing resets, and the
+    real frames pair as before.
+    """
+    p = StereoPairing()
+    base = 1_704_067_200 * 1000 * MS
+    frame = 33 * MS
+    for k, bad in enumerate((0, 1000 * MS, base + 365 * 86400 * 1000 * MS)):
+        for side in (0, 1):
+            assert p.add(side, base + 2 * k * frame, f'{k}{side}') == []
+        assert p.newest_pair()[0] == base + 2 * k * frame
+        assert p.add(0, bad, 'bad') == [] and p.add(1, bad, 'bad') == []       # held
+        events = p.add(0, base + (2 * k + 1) * frame, 'L')
+        assert events == ['outlier', 'outlier']
+        p.add(1, base + (2 * k + 1) * frame, 'R')
+        assert p.newest_pair() == (base + (2 * k + 1) * frame, 'L', 'R')
+    assert (p.stats.stamp_outliers, p.stats.stamp_resets, p.stats.out_of_order) == (6, 0, 0)
+
+
+def test_a_forward_jump_is_confirmed_without_reset():
+    """The camera was away for 5 s: its first images after the gap are held, then handed
+    on together; nothing is reset.
+    """
+    p = StereoPairing(forward_jump_ns=1000 * MS, confirm_count=3)
+    for side in (0, 1):
+        p.add(side, 100 * MS, side)
+    p.newest_pair()
+    for side, stamp in ((0, 5100), (1, 5100), (0, 5133)):
+        p.add(side, stamp * MS, stamp)
+    assert p.stats.stamp_resets == 0 and p.stats.stamp_outliers == 0
+    assert p.newest_pair() == (5100 * MS, 5100, 5100)
 
 
 def test_pending_halves_are_bounded():

@@ -22,7 +22,7 @@ ENCODINGS = tuple(_ENCODINGS)
 
 class ImageError(ValueError):
     """An image message that cannot be used: ``kind`` names the problem (``encoding``,
-    ``empty``, ``step``, ``truncated``), the text says why.
+    ``empty``, ``step``, ``truncated``, ``size``), the text says why.
     """
 
     def __init__(self, kind, text):
@@ -36,7 +36,9 @@ def image_to_array(msg, mono8=False):
     mono images are returned as they are (a view of the message data where possible),
     uint8 or uint16; colour and YUV images as uint8 grey. ``mono8``: 16-bit images keep
     their 8 most significant bits (uint8 out). Raises :class:`ImageError` for an unknown
-    encoding, an empty, truncated or inconsistent image.
+    encoding, an empty, truncated or inconsistent image: the data must be exactly
+    ``height·step`` bytes (sensor_msgs/Image), so a width, height or step that does not
+    describe the data is refused rather than read as a different image.
     """
     if msg.encoding not in _ENCODINGS:
         raise ImageError('encoding', f'unsupported image encoding {msg.encoding!r}')
@@ -51,7 +53,9 @@ def image_to_array(msg, mono8=False):
     if data.size < step * height:
         raise ImageError('truncated',
                          f'truncated image: {data.size} B < {height} rows x {step} B')
-    rows = data[:step * height].reshape(height, step)[:, :row_bytes]
+    if data.size != step * height:
+        raise ImageError('size', f'image data {data.size} B != {height} rows x {step} B')
+    rows = data.reshape(height, step)[:, :row_bytes]
     if depth == 2:
         words = np.ascontiguousarray(rows).view('>u2' if msg.is_bigendian else '<u2')
         image = words.reshape(height, width)

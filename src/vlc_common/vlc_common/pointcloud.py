@@ -3,7 +3,10 @@
 Per-lamp records travel as PointCloud2 with one named field per column (one point per
 lamp, ARCHITECTURE.md). The rig, the decoder, the spot locator and the localizer all use
 these two functions, so a record written by one node reads back field for field in
-another.
+another. A receiver reads a topic with its documented layout
+(``cloud_to_records(msg, layout)``): a cloud whose bytes do not match its own
+description, or whose fields have other types than the layout's, is refused with a
+ValueError saying why, never read as garbage numbers.
 """
 import array
 
@@ -34,18 +37,43 @@ def records_to_cloud(records, header):
                        is_dense=True)
 
 
-def cloud_to_records(msg):
+def cloud_to_records(msg, layout=None, required=()):
     """PointCloud2 → structured array with the message's named fields.
 
-    Raises ValueError for an unknown field type, a field outside the point, or data
-    shorter than ``width·height`` points.
+    Parameters
+    ----------
+    msg : sensor_msgs/PointCloud2
+    layout : numpy.dtype, optional
+        The documented layout of the topic (:mod:`vlc_common.core.records`): a field of
+        the message named like one of the layout must have its type (the offsets may
+        differ; fields the layout does not name are read as they are), and the cloud
+        must be little endian, as the layouts are.
+    required : sequence of str
+        Fields the message must have (also when it has no point).
+
+    Raises ValueError, naming the problem, for an unknown field type, a field count
+    below 1, fields that overlap, a field outside the point, a repeated field name,
+    data not exactly ``width·height·point_step`` bytes, an organised cloud (``height`` >
+    1) with row padding (``row_step`` other than ``width·point_step``), and, with
+    ``layout``, a big-endian cloud or a field of the wrong type.
     """
+    if layout is not None and msg.is_bigendian:
+        raise ValueError('big-endian cloud: the layout is little endian')
     endian = '>' if msg.is_bigendian else '<'
     names, formats, offsets = [], [], []
     for f in msg.fields:
         if f.datatype not in _NUMPY_TYPE:
             raise ValueError(f'field {f.name!r}: unknown PointField datatype {f.datatype}')
+        if f.count < 1:
+            raise ValueError(f'field {f.name!r}: count {f.count}')
+        if f.name in names:
+            raise ValueError(f'field {f.name!r} appears twice')
         fmt = np.dtype(endian + _NUMPY_TYPE[f.datatype])
+        if layout is not None and layout.names and f.name in layout.names:
+            want = layout.fields[f.name][0]
+            if fmt.str[1:] != want.str[1:] or f.count != 1:
+                raise ValueError(f'field {f.name!r} is {_NUMPY_TYPE[f.datatype]} x {f.count}, '
+                                 f'the layout has {want.str[1:]} x 1')
         if f.count > 1:
             fmt = np.dtype((fmt, (f.count,)))
         if f.offset + fmt.itemsize > msg.point_step:
@@ -53,12 +81,22 @@ def cloud_to_records(msg):
         names.append(f.name)
         formats.append(fmt)
         offsets.append(f.offset)
+    spans = sorted((o, o + fmt.itemsize, n) for o, fmt, n in zip(offsets, formats, names))
+    for (_, end, first), (start, _, second) in zip(spans, spans[1:]):
+        if start < end:
+            raise ValueError(f'fields {first!r} and {second!r} overlap')
+    missing = [n for n in required if n not in names]
+    if missing:
+        raise ValueError(f'missing fields {", ".join(missing)}')
+    n = int(msg.width) * int(msg.height)
+    size = len(msg.data)
+    if int(msg.height) > 1 and int(msg.row_step) != int(msg.width) * int(msg.point_step):
+        raise ValueError(f'row_step {msg.row_step} B is not width {msg.width} x point_step '
+                         f'{msg.point_step} B')
+    if size != n * int(msg.point_step):
+        raise ValueError(f'point cloud data {size} B for {n} points x {msg.point_step} B')
     if not names:
         return np.zeros(0)
     dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
                       'itemsize': msg.point_step})
-    n = int(msg.width) * int(msg.height)
-    buf = np.frombuffer(bytes(msg.data), dtype=np.uint8)
-    if buf.size < n * msg.point_step:
-        raise ValueError(f'point cloud data {buf.size} B < {n} points x {msg.point_step} B')
-    return np.frombuffer(buf[:n * msg.point_step].tobytes(), dtype=dtype)
+    return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)

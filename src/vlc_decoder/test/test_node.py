@@ -218,7 +218,9 @@ def test_node_reports_uid_absent_from_the_map_as_anomaly(harness, tmp_path):
 
 def test_node_starts_afresh_when_a_looped_bag_jumps_back(harness):
     """Stamps jumping back by more than stamp_jump_reset_s (a looped replay) reset the
-    lamp tracks with a warning and decoding goes on; a smaller step back is skipped.
+    lamp tracks with a warning and decoding goes on, from the first frame of the replay
+    (held until the third image of the new time base confirmed it); a smaller step back
+    is skipped.
     """
     h = harness()
     run = list(frames(45))
@@ -232,17 +234,71 @@ def test_node_starts_afresh_when_a_looped_bag_jumps_back(harness):
     stamp, left, right, _ = run[-2]
     assert not h.send(image_msg(left, last - 10 ** 7), image_msg(right, last - 10 ** 7),
                       wait_output=False)
-    replayed = []
-    for stamp, left, right, _ in run[20:26]:
-        out = h.send(image_msg(left, stamp), image_msg(right, stamp))
-        assert out, 'the replay after the jump is decoded, not skipped'
-        replayed.append(conversions.cloud_to_array(out[-1]))
-    first = replayed[0]
+    before = len(h.clouds)
+    stamp, left, right, _ = run[20]
+    assert not h.send(image_msg(left, stamp), image_msg(right, stamp), wait_output=False)
+    for stamp, left, right, _ in run[21:26]:
+        assert h.send(image_msg(left, stamp), image_msg(right, stamp)), \
+            'the replay after the jump is decoded, not skipped'
+    h.spin(0.3)
+    replayed = h.clouds[before:]
+    # the held first pair is decoded, or superseded by the second when both were
+    # complete at once (the node keeps up with the newest pair)
+    stamps = [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in replayed]
+    assert stamps in ([r[0] for r in run[20:26]], [r[0] for r in run[21:26]])
+    first = conversions.cloud_to_array(replayed[0])
     assert len(first) and not np.any(first['state'] == 2), 'state carried across the jump'
     assert min(first['track_id']) > max(track_ids)
     values, _ = h.stats()
-    assert int(values['resets_stamp_jump']) == 1
+    assert int(values['resets_stamp_jump']) == 1 and int(values['skipped_stamp_outliers']) == 0
     assert int(values['skipped_out_of_order']) == 2      # both images of the pair
+
+
+def test_lone_1970_and_future_stamped_pairs_neither_reset_nor_stop_the_tracks(harness):
+    """A black pair stamped 1970 (sec 0, sec 1) or a year ahead between real frames is
+    dropped as an outlier; the lamp tracks go on (same track ids) and the lamp is still
+    confirmed; images whose data do not match their header, or whose size is not
+    camera_info's, are skipped.
+    """
+    from sensor_msgs.msg import CameraInfo
+    h = harness()
+    run = list(frames(40))
+    black = np.zeros_like(run[0][1])
+    strays = {8: 0, 14: 10 ** 9, 20: EPOCH_NS + 365 * 86400 * 10 ** 9}
+    track_ids = []
+    for k, (stamp, left, right, _) in enumerate(run):
+        if k in strays:
+            assert not h.send(image_msg(black, strays[k]), image_msg(black, strays[k]),
+                              wait_output=False)
+        if k == 26:
+            short = image_msg(left, stamp)
+            short.height -= 1                      # the data hold one row more
+            assert not h.send(short, image_msg(right, stamp), wait_output=False)
+            continue
+        out = h.send(image_msg(left, stamp), image_msg(right, stamp))
+        assert out
+        track_ids.append(set(conversions.cloud_to_array(out[-1])['track_id'].tolist()))
+    assert h.node.tracker.resets == 0
+    for k in strays:                          # the same lamp track before and after
+        assert track_ids[k - 1] & track_ids[k], (k, track_ids[k - 1], track_ids[k])
+    values, _ = h.stats()
+    assert int(values['skipped_stamp_outliers']) == 6 and int(values['resets_stamp_jump']) == 0
+    assert int(values['lamps_confirmed']) >= 1 and int(values['skipped_bad_image']) == 1
+    # a camera_info of half the size is not taken at once; frames keep being decoded
+    pub_info = h.probe.create_publisher(CameraInfo, 'stereo/left/camera_info', 10)
+    info = CameraInfo(width=run[0][1].shape[1], height=run[0][1].shape[0],
+                      k=[900.0, 0, 100, 0, 900.0, 80, 0, 0, 1.0],
+                      p=[900.0, 0, 100, 0, 0, 900.0, 80, 0, 0, 0, 1.0, 0])
+    half = CameraInfo(width=info.width // 2, height=info.height // 2, k=info.k, p=info.p)
+    h.spin(0.5)
+    for msg in (info, half):
+        pub_info.publish(msg)
+        h.spin(0.3)
+    assert h.node.infos[0].width == info.width
+    stamp = run[-1][0] + 33_333_333
+    assert h.send(image_msg(run[-1][1], stamp), image_msg(run[-1][2], stamp))
+    values, _ = h.stats()
+    assert values['camera_info_ignored'] == '0' and 'skipped_size_mismatch' not in values
 
 
 def test_parameter_file_and_declared_defaults_carry_the_same_signal_timing():

@@ -7,7 +7,10 @@ Subscribes (relative names):
   converted to gray, mono16 keeps its high byte.
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
   best effort, volatile: matches any publisher): image size checks and the stereo
-  disparity bound fx·baseline / ``min_depth_m``.
+  disparity bound fx·baseline / ``min_depth_m``. The last good one of each camera is
+  kept (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one (zero or NaN
+  K/P) is refused with a throttled warning, a different valid one is taken only once it
+  came three times in a row.
 
 Publishes:
 
@@ -19,10 +22,14 @@ Publishes:
   ``diagnostics_period_s`` and at once when a CRC-valid UID absent from the lamp map
   appears (an anomaly, never published as a lamp).
 
-Bad input (unknown encoding, empty or truncated image, left/right size mismatch,
-unpaired or out-of-order stamps) gives a throttled warning and the frame is skipped. A
-stamp more than ``stamp_jump_reset_s`` before the last decoded frame (a looped bag)
-resets the lamp tracks with a throttled warning and decoding starts afresh.
+Bad input (unknown encoding, empty, truncated or inconsistent image, left/right size
+mismatch, images of another size than camera_info's, unpaired or out-of-order stamps)
+gives a throttled warning and the frame is skipped. An image stamped more than
+``stamp_jump_reset_s`` before or ``forward_jump_s`` after the newest one is held: alone
+(a 1970 or far-future stamp) it is dropped as an outlier and counted; only
+``time_base_confirm_count`` consecutive images of the new time base (a looped bag)
+reset the lamp tracks, with a throttled warning, and decoding starts afresh with them
+(:class:`vlc_common.core.stereo_pairing.StereoPairing`).
 Frames are decoded on the executor thread, well inside a frame period
 (``decoder_benchmark`` measures it). OpenCV runs single-threaded.
 """
@@ -38,6 +45,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+from vlc_common.camera_info import CameraInfoKeeper
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.polled import take_pending
@@ -121,6 +129,12 @@ NODE_PARAMETERS = (
                                 0.05, 100.0)),
     ('max_pending_stamps', 10, _int('Unpaired image stamps kept before the oldest is '
                                     'dropped.', 1, 1000)),
+    ('forward_jump_s', 1.0, _float('An image stamped more than this after the newest one '
+                                   'is held as a possible outlier, s.', 0.0, 3600.0)),
+    ('time_base_confirm_count', 3, _int('Consecutive images of a new time base (stamped '
+                                        'beyond stamp_jump_reset_s before or '
+                                        'forward_jump_s after the newest one) that '
+                                        'confirm it; fewer are outliers, dropped.', 1, 1000)),
     ('diagnostics_period_s', 1.0, _float('Diagnostics period, s (wall time).', 0.05, 3600.0)),
     ('hardware_id', 'stereo_camera', _str('hardware_id of the diagnostics status.')),
     ('warm_up', True, _bool('Decode a few synthetic striped frames before subscribing, so '
@@ -182,9 +196,11 @@ class VlcDecoderNode(Node):
             warm_up(self.cfg, lamp_map)
             self.get_logger().info(f'warmed up in {(time.perf_counter() - start) * 1e3:.0f} ms')
         self.tracker = LampTracker(self.cfg, lamp_map)
-        self.infos = [None, None]
-        self.pairing = StereoPairing(self.max_pending,
-                                     int(round(self.cfg.stamp_jump_reset_s * 1e9)))
+        self.camera_infos = CameraInfoKeeper()
+        self.pairing = StereoPairing(
+            self.max_pending, int(round(self.cfg.stamp_jump_reset_s * 1e9)),
+            int(round(self.get_parameter('forward_jump_s').value * 1e9)),
+            self.get_parameter('time_base_confirm_count').value)
         self.stats = collections.Counter()
         self.proc_ms = collections.deque(maxlen=300)
         self.reported_anomalies = set()
@@ -221,8 +237,19 @@ class VlcDecoderNode(Node):
         """Warn at most once per WARN_THROTTLE_S (wall time) for each kind of problem."""
         self._warnings.warn(kind, text)
 
+    @property
+    def infos(self):
+        """The kept (last good) camera_info of the left and right camera, or None."""
+        return self.camera_infos.current
+
     def _on_info(self, side, msg):
-        self.infos[side] = msg
+        outcome, reason = self.camera_infos.update(side, msg)
+        if outcome == CameraInfoKeeper.REFUSED:
+            self._warn(f'camera_info_refused_{side}', f'{("left", "right")[side]} camera_info '
+                       f'refused, the last good one kept: {reason}')
+        elif outcome == CameraInfoKeeper.PENDING:
+            self._warn(f'camera_info_pending_{side}', f'{("left", "right")[side]} camera_info '
+                       f'{reason}')
 
     def _on_image(self, side, msg):
         """Pair by stamp and decode the newest complete pair: the images that arrived
@@ -233,16 +260,22 @@ class VlcDecoderNode(Node):
                                     for m in take_pending(sub)]
         unpaired = self.pairing.stats.unpaired
         for image_side, image in arrivals:
-            event = self.pairing.add(image_side, stamp_to_ns(image.header.stamp), image)
-            if event == 'reset':
-                # a looped bag or a restarted camera: start afresh rather than skip every
-                # frame until the stamps catch up, and never mix fragments across the jump
-                self._warn('stamp_jump', 'image stamps jumped back by more than '
-                           'stamp_jump_reset_s: lamp tracks reset')
-                self.tracker.reset()
-            elif event == 'out_of_order':
-                self._warn('out_of_order', 'an image stamp is not after the last decoded '
-                           'frame: skipped')
+            for event in self.pairing.add(image_side, stamp_to_ns(image.header.stamp), image):
+                if event == 'reset':
+                    # a looped bag or a restarted camera: start afresh rather than skip
+                    # every frame until the stamps catch up, and never mix fragments
+                    # across the jump
+                    self._warn('stamp_jump', 'image stamps jumped back by more than '
+                               'stamp_jump_reset_s for time_base_confirm_count images: lamp '
+                               'tracks reset')
+                    self.tracker.reset()
+                elif event == 'out_of_order':
+                    self._warn('out_of_order', 'an image stamp is not after the last decoded '
+                               'frame: skipped')
+                elif event == 'outlier':
+                    self._warn('stamp_outlier', 'an image stamped far from the stream '
+                               '(beyond stamp_jump_reset_s before or forward_jump_s after '
+                               'the newest) dropped')
         pair = self.pairing.newest_pair()
         if self.pairing.stats.unpaired > unpaired:
             self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '
@@ -267,8 +300,11 @@ class VlcDecoderNode(Node):
         for side, info in enumerate(self.infos):
             if info is not None and (info.width, info.height) != (left.shape[1],
                                                                    left.shape[0]):
-                self._warn(f'camera_info_{side}', f'camera_info {info.width}x{info.height} '
-                           f'does not match the {left.shape[1]}x{left.shape[0]} images')
+                self.stats['skipped_size_mismatch'] += 1
+                self._warn(f'camera_info_{side}', f'frame {stamp_ns} ns skipped: camera_info '
+                           f'{info.width}x{info.height} does not match the '
+                           f'{left.shape[1]}x{left.shape[0]} images')
+                return
         self.tracker.max_disparity_px = self._max_disparity()
         start = time.perf_counter()
         records = self.tracker.process(stamp_ns, left, right)
@@ -294,7 +330,8 @@ class VlcDecoderNode(Node):
     def _pairing_counts(self):
         ps = self.pairing.stats
         return {'skipped_unpaired': ps.unpaired, 'skipped_out_of_order': ps.out_of_order,
-                'skipped_superseded': ps.superseded, 'resets_stamp_jump': ps.stamp_resets}
+                'skipped_superseded': ps.superseded, 'skipped_stamp_outliers': ps.stamp_outliers,
+                'resets_stamp_jump': ps.stamp_resets}
 
     def _publish_diagnostics(self):
         tracker = self.tracker
@@ -312,6 +349,8 @@ class VlcDecoderNode(Node):
             message = f'{skipped} frames skipped (bad input)'
         values = dict(counts)
         values.update({
+            'camera_info_refused': self.camera_infos.refused,
+            'camera_info_ignored': self.camera_infos.ignored,
             'tracks_active': len(tracker.tracks),
             'lamps_confirmed': len(tracker.confirmations),
             'anomalous_uids': ' '.join(f'{u:#06x}' for u in anomalies),

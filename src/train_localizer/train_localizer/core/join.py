@@ -31,6 +31,9 @@ LAMP_POSITION_FIELDS = (('left_u', 'left_v'), ('u_left', 'v_left'))
 #: (CRC-valid UID absent from the map). Both carry their UID; the localizer reports an
 #: anomaly's UID as unknown and never uses it.
 STATE_CONFIRMED, STATE_ANOMALY = 2, 3
+#: Largest |stamp_offset_s| of a spot pair taken as its exposure mid-time, s (a frame's
+#: readout lasts 22 ms); a larger one is treated as unknown.
+MAX_STAMP_OFFSET_S = 1.0
 
 
 @dataclass
@@ -74,6 +77,8 @@ def observations_from_spots(stamp_ns, spots):
     svr = _field(spots, ('sigma_v_right',), 0.1)
     sd = _field(spots, ('sigma_disparity',))
     offset = _field(spots, ('stamp_offset_s',))
+    # an exposure mid-time more than a second from its image stamp is not one: unknown
+    offset = np.where(np.abs(offset) <= MAX_STAMP_OFFSET_S, offset, math.nan)
     out = []
     for i in range(spots.size):
         out.append(LampObservation(

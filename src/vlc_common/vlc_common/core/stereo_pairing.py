@@ -5,9 +5,17 @@ arrived, and when they fall behind (a busy machine, a stall) they work on the ne
 complete pair and drop every older image instead of working through a backlog: the lag
 behind the camera stays bounded by one pair's processing. Every image that is not
 processed is counted by why.
+
+Stamps pass a :class:`~vlc_common.core.stamp_guard.StampGuard` (one for both sides)
+first: an image stamped far from the stream (1970, the far future) is held, and dropped
+as an outlier when the stream goes on; only ``confirm_count`` consecutive images of a new
+time base (a looped bag, a restarted camera) are handed on, and a jump back then restarts
+the pairing. One bad stamp costs its own image, never the pairing.
 """
 from collections import OrderedDict
 from dataclasses import dataclass
+
+from vlc_common.core.stamp_guard import NS_PER_S, StampGuard
 
 
 @dataclass
@@ -17,7 +25,8 @@ class PairingStats:
     unpaired: int = 0         # its partner never came (dropped when newer pairs completed)
     superseded: int = 0       # complete pairs dropped for a newer complete pair (lag)
     out_of_order: int = 0     # not newer than the last pair handed over
-    stamp_resets: int = 0     # stamps jumped back by more than the reset threshold
+    stamp_resets: int = 0     # a confirmed new time base jumped back: pairing restarted
+    stamp_outliers: int = 0   # stamped far from the stream (held, then dropped)
 
 
 class StereoPairing:
@@ -29,43 +38,54 @@ class StereoPairing:
         Unpaired stamps kept while waiting for their other half; the oldest beyond this
         are dropped as unpaired.
     backward_reset_ns : int
-        A stamp this much older than the last pair handed over (a looped bag, a
-        restarted camera) clears the pairing and starts afresh; a smaller step back is
-        out of order and dropped.
+        An image stamped more than this before the last pair handed over (or the newest
+        image, if that is older) is held as a possible outlier (see the module
+        docstring); once a new time base this far back is
+        confirmed (a looped bag, a restarted camera) the pairing is cleared and starts
+        afresh. A smaller step back is out of order and dropped.
+    forward_jump_ns : int
+        An image stamped more than this after the newest one is held the same way.
+    confirm_count : int
+        Consecutive images of a new time base that confirm it.
     """
 
-    def __init__(self, max_pending=10, backward_reset_ns=1_000_000_000):
+    def __init__(self, max_pending=10, backward_reset_ns=NS_PER_S, forward_jump_ns=NS_PER_S,
+                 confirm_count=3):
         self.max_pending = int(max_pending)
         self.backward_reset_ns = int(backward_reset_ns)
+        self.guard = StampGuard(backward_reset_ns, forward_jump_ns, confirm_count)
         self.stats = PairingStats()
         self._pending = OrderedDict()      # stamp → [left, right], in arrival order
         self.last_stamp_ns = None          # the last pair handed over
 
     def add(self, side, stamp_ns, item):
-        """Keep one image; returns ``'reset'`` when its stamp jumped back far enough to
-        restart the pairing (the caller resets what depends on the timeline),
-        ``'out_of_order'`` when it is not newer than the last pair handed over (dropped),
-        else None.
+        """Offer one image; returns the list of what happened, in order (usually empty):
+        ``'outlier'`` for each held image dropped as an outlier, ``'reset'`` when a
+        confirmed new time base jumped back and the pairing restarted (the caller resets
+        what depends on the timeline), ``'out_of_order'`` for each image not newer than
+        the last pair handed over (dropped).
         """
-        stamp_ns = int(stamp_ns)
-        event = None
-        if (self.last_stamp_ns is not None
-                and self.last_stamp_ns - stamp_ns > self.backward_reset_ns):
+        result = self.guard.push(stamp_ns, (side, item), self.last_stamp_ns)
+        events = ['outlier'] * len(result.dropped)
+        self.stats.stamp_outliers += len(result.dropped)
+        if result.rebased < 0:
             self.stats.unpaired += sum(1 for halves in self._pending.values()
                                        for h in halves if h is not None)
             self._pending.clear()
             self.last_stamp_ns = None
             self.stats.stamp_resets += 1
-            event = 'reset'
-        if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
-            self.stats.out_of_order += 1
-            return 'out_of_order'
-        halves = self._pending.setdefault(stamp_ns, [None, None])
-        halves[side] = item
-        while len(self._pending) > self.max_pending:
-            _, old = self._pending.popitem(last=False)
-            self.stats.unpaired += sum(h is not None for h in old)
-        return event
+            events.append('reset')
+        for stamp, (image_side, image) in result.released:
+            if self.last_stamp_ns is not None and stamp <= self.last_stamp_ns:
+                self.stats.out_of_order += 1
+                events.append('out_of_order')
+                continue
+            halves = self._pending.setdefault(stamp, [None, None])
+            halves[image_side] = image
+            while len(self._pending) > self.max_pending:
+                _, old = self._pending.popitem(last=False)
+                self.stats.unpaired += sum(h is not None for h in old)
+        return events
 
     def newest_pair(self):
         """(stamp_ns, left, right) of the newest complete pair, or None. Every image older
