@@ -16,7 +16,11 @@ with its lamp map),
 a bag with ``--clock``), ``use_curvature`` (true: also start ``curvature_node``, whose
 matches the localizer uses to re-acquire after a long lamp outage; on a straight line it
 never publishes — set false there to save its CPU), ``curvature_speed_topic``
-(``train/odometry``; a wheel tachometer's nav_msgs/Odometry if there is one). Float arguments
+(``train/odometry``; a wheel tachometer's nav_msgs/Odometry if there is one),
+``use_sbs_camera`` (false: true starts ``sbs_splitter_node`` on a side-by-side UVC camera's
+``sbs_image_topic``, default ``image_raw``, split with ``sbs_calibration_files``, e.g.
+``"[left.yaml,right.yaml]"``; ``sbs_input`` raw or compressed), ``use_view`` (false: true
+starts ``marker_node``, the RViz2/Foxglove markers). Float arguments
 need a decimal point. The same graph is started here, where the ``launch`` package is
 not installable, by ``run_evaluation`` (``vlc_evaluation``), which runs the
 installed executables as processes with the same parameter files.
@@ -39,6 +43,7 @@ def _config(package, name):
 def generate_launch_description():
     use_rig = LaunchConfiguration('use_rig')
     use_curvature = LaunchConfiguration('use_curvature')
+    sbs_input = LaunchConfiguration('sbs_input')
     sim_time = {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
                                                value_type=bool)}
     scenario = {
@@ -76,6 +81,31 @@ def generate_launch_description():
         DeclareLaunchArgument('curvature_speed_topic', default_value='train/odometry',
                               description='nav_msgs/Odometry speed source of curvature_node '
                                           '(a wheel tachometer if available).'),
+        DeclareLaunchArgument('use_sbs_camera', default_value='false',
+                              description='Start sbs_splitter_node on a side-by-side stereo '
+                                          'UVC camera (usb_cam, v4l2_camera).'),
+        DeclareLaunchArgument('sbs_calibration_files', default_value='[]',
+                              description='Its calibration: "[left.yaml,right.yaml]" '
+                                          '(camera_info_manager) or OpenCV file(s).'),
+        DeclareLaunchArgument('sbs_input', default_value='raw',
+                              description="'raw' (sensor_msgs/Image) or 'compressed' (JPEG "
+                                          'on <sbs_image_topic>/compressed).'),
+        DeclareLaunchArgument('sbs_image_topic', default_value='image_raw',
+                              description="The camera driver's side-by-side image topic."),
+        DeclareLaunchArgument('use_view', default_value='false',
+                              description='Start marker_node (RViz2/Foxglove markers).'),
+        Node(package='vlc_camera_input', executable='sbs_splitter_node',
+             parameters=[_config('vlc_camera_input', 'sbs_splitter_node.yaml'), sim_time,
+                         {'input': sbs_input,
+                          # (a launch argument is read as YAML: "[a.yaml,b.yaml]" a list)
+                          'calibration_files': LaunchConfiguration('sbs_calibration_files')}],
+             remappings=[('image_raw', LaunchConfiguration('sbs_image_topic')),
+                         ('image_raw/compressed',
+                          [LaunchConfiguration('sbs_image_topic'), '/compressed'])],
+             condition=IfCondition(LaunchConfiguration('use_sbs_camera')), output='screen'),
+        Node(package='vlc_view', executable='marker_node',
+             parameters=[_config('vlc_view', 'marker_node.yaml'), sim_time, lamp_map],
+             condition=IfCondition(LaunchConfiguration('use_view')), output='screen'),
         Node(package='vlc_stereo_camera', executable='stereo_camera_node',
              parameters=[rig, _config('vlc_stereo_camera', 'stereo_camera_node.yaml'),
                          scenario, lamp_map], condition=IfCondition(use_rig), output='screen'),

@@ -34,7 +34,7 @@ def tree():
 
 def test_every_node_is_an_installed_executable(tree):
     nodes = [(_kw(c, 'package'), _kw(c, 'executable')) for c in _calls(tree, 'Node')]
-    assert len(nodes) == 7
+    assert len(nodes) == 9
     for package, executable in nodes:
         assert (INSTALL / 'lib' / package / executable).exists(), (package, executable)
 
@@ -51,4 +51,5 @@ def test_declared_arguments(tree):
     declared = {c.args[0].value for c in _calls(tree, 'DeclareLaunchArgument')}
     assert declared == {'use_rig', 'use_sim_time', 'motion_profile', 'speed_kmh',
                         'start_chainage_m', 'seed', 'alignment', 'lamp_map_path',
-                        'use_curvature', 'curvature_speed_topic'}
+                        'use_curvature', 'curvature_speed_topic', 'use_sbs_camera',
+                        'sbs_calibration_files', 'sbs_input', 'sbs_image_topic', 'use_view'}
