@@ -138,8 +138,8 @@ def fuse_aiding(compensator, msg, heading_std_rad):
 
     Returns
     -------
-    (bool, float)
-        Whether it was fused, and its stamp (s).
+    (AidingResult, float)
+        What was done with it (true when it was applied), and its stamp (s).
     """
     t_s, quat, cov = pose_attitude(msg)
     if cov is not None:

@@ -11,7 +11,8 @@ Subscriptions
     covariance (rows/columns 3-5, about map x, y, z) when that block is positive
     definite; otherwise only the yaw of the orientation, with variance covariance[35]
     (``heading_aiding_std_rad`` when that is not positive either), e.g. a heading
-    from another source.
+    from another source. An aid inconsistent with the estimate (Mahalanobis gate) is
+    rejected, counted and warned about; see :mod:`imu_compensator.core.compensator`.
 
 Publications
 ------------
@@ -24,7 +25,8 @@ Publications
     :class:`imu_compensator.core.attitude_buffer.AttitudeBuffer`.
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10)
     Every ``diagnostics_period_s`` (wall clock): gyro bias and its 1σ, zero-velocity
-    state, measured sample rate, accepted / dropped / gap / reset counts, attitude.
+    state, measured sample rate, accepted / dropped / gap / reset counts, aiding counts
+    (used, rejected, inconsistent, resets, re-initialisations), attitude.
 
 Bad input (non-finite values, duplicate or out-of-order stamps, a time jump backwards,
 gaps) is counted, warned about (throttled) and skipped or handled as described in
@@ -51,7 +53,12 @@ from sensor_msgs.msg import Imu
 
 from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
-from imu_compensator.core.compensator import AttitudeCompensator, CompensatorConfig, SampleStatus
+from imu_compensator.core.compensator import (
+    AidingStatus,
+    AttitudeCompensator,
+    CompensatorConfig,
+    SampleStatus,
+)
 from imu_compensator.core.zero_velocity import ZeroVelocityConfig
 from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from vlc_common.core.stamp_guard import StampGuard
@@ -158,6 +165,15 @@ NODE_PARAMETERS = (
                                          'outliers, dropped.', 1, 1000, integer=True)),
     ('history_s', _C.history_s, _desc('Attitude history kept for delayed aiding, s.',
                                       0.1, 60.0)),
+    ('aiding_gate_probability', _C.aiding_gate_probability,
+     _desc('An aid is fused only when its squared Mahalanobis distance is within this '
+           'chi-square quantile (3 dof attitude, 1 dof heading); 1 = no gate.', 0.5, 1.0)),
+    ('aiding_max_correction_rad', _C.aiding_max_correction_rad,
+     _desc('A consistent aid that would turn the attitude by more than this is applied as '
+           'an attitude reset (no bias or scale correction through it), rad.', 1e-3, 3.2)),
+    ('aiding_reinit_count', _C.aiding_reinit_count,
+     _desc('This many consecutive inconsistent aids that agree re-initialise the attitude '
+           'from them; 0 = never.', 0, 1000, integer=True)),
     ('orientation_std_floor_rad', [0.05 * DEG, 0.05 * DEG, 0.1 * DEG],
      _desc('1 sigma [roll, pitch, heading] added in quadrature to the published orientation '
            'covariance (errors the filter does not model), rad.', ptype=_ARRAY)),
@@ -242,7 +258,10 @@ def read_config(node):
                              backward_reset_s=v['backward_reset_s'],
                              imu_mount_rpy_rad=tuple(
                                  float(a) for a in load_vehicle(v['vehicle_path']).imu.rpy_rad),
-                             history_s=v['history_s'])
+                             history_s=v['history_s'],
+                             aiding_gate_probability=v['aiding_gate_probability'],
+                             aiding_max_correction_rad=v['aiding_max_correction_rad'],
+                             aiding_reinit_count=v['aiding_reinit_count'])
     return NodeConfig(
         imu_frame_id=v['imu_frame_id'], base_frame_id=v['base_frame_id'],
         publish_decimation=v['publish_decimation'],
@@ -360,10 +379,29 @@ class ImuCompensatorNode(Node):
                                 f'({result.dt_s * 1e3:.1f} ms before the newest) skipped')
 
     def _on_attitude_aiding(self, msg):
-        ok, t_s = fuse_aiding(self.compensator, msg, self.config.heading_aiding_std_rad)
-        if not ok:
+        result, t_s = fuse_aiding(self.compensator, msg, self.config.heading_aiding_std_rad)
+        status = result.status
+        if status is AidingStatus.INCONSISTENT:
+            self._warnings.warn('aiding_inconsistent', lambda: (
+                f'attitude aiding at t = {t_s:.6f} s rejected: inconsistent with the estimate '
+                f'(Mahalanobis d2 {result.d2:.1f} > {result.gate_d2:.1f}, {result.dof} dof; '
+                f'innovation {math.degrees(result.innovation_rad):.2f} deg)'))
+        elif status is AidingStatus.REINITIALISED:
+            self.get_logger().warn(
+                f'attitude re-initialised from the aid at t = {t_s:.6f} s: '
+                f'{self.config.compensator.aiding_reinit_count} consecutive aids agreed on a '
+                f'correction the estimate excluded (innovation '
+                f'{math.degrees(result.innovation_rad):.2f} deg)')
+        elif status is AidingStatus.RESET:
+            self._warnings.warn('aiding_reset', lambda: (
+                f'attitude aiding at t = {t_s:.6f} s applied as an attitude reset: '
+                f'correction {math.degrees(result.correction_rad):.2f} deg, too large to '
+                'linearise'))
+        elif not status.applied:
+            why = ('outside the attitude history' if status is AidingStatus.OUTSIDE_HISTORY
+                   else 'not finite or covariance not positive definite')
             self._warnings.warn('aiding_rejected', lambda: f'attitude aiding at t = {t_s:.6f} s '
-                                'rejected (outside the attitude history or not finite)')
+                                f'rejected ({why})')
 
     # ------------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self):
@@ -379,6 +417,7 @@ class ImuCompensatorNode(Node):
         dropped = stats.dropped + self._guard.stats.outliers
         new_problems = prev is not None and (dropped > prev[0] or stats.gaps > prev[1]
                                               or stats.resets > prev[2])
+        new_inconsistent = prev is not None and stats.aiding_inconsistent > prev[3]
         if now_t is None:
             status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample yet'
         elif self._diag_count == 0:
@@ -386,6 +425,9 @@ class ImuCompensatorNode(Node):
         elif new_problems:
             status.level = DiagnosticStatus.WARN
             status.message = 'bad IMU input this period (dropped, gap or reset)'
+        elif new_inconsistent:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'attitude aiding inconsistent with the estimate this period'
         else:
             status.level, status.message = DiagnosticStatus.OK, 'tracking'
         bias = comp.gyro_bias_rps
@@ -408,6 +450,9 @@ class ImuCompensatorNode(Node):
             'resets': str(stats.resets),
             'attitude_aiding_used': str(stats.aiding_used),
             'attitude_aiding_rejected': str(stats.aiding_rejected),
+            'attitude_aiding_inconsistent': str(stats.aiding_inconsistent),
+            'attitude_aiding_resets': str(stats.aiding_resets),
+            'attitude_aiding_reinitialisations': str(stats.aiding_reinitialisations),
             'rpy_deg': ' '.join(f'{a / DEG:.3f}' for a in rpy),
             'heading_std_deg': f'{math.sqrt(comp.filter.attitude_covariance[2, 2]) / DEG:.4f}',
         }
@@ -419,7 +464,7 @@ class ImuCompensatorNode(Node):
         self._diag_pub.publish(msg)
         self._diag_t0 = now_t
         self._diag_count = 0
-        self._diag_stats = (dropped, stats.gaps, stats.resets)
+        self._diag_stats = (dropped, stats.gaps, stats.resets, stats.aiding_inconsistent)
 
 
 def main(args=None):

@@ -176,7 +176,8 @@ def aid(stamp_ns, quat, cov3=None, yaw_var=0.0):
 
 
 def test_attitude_aiding_full_heading_only_and_malformed(ctx):
-    h = Harness(ctx)
+    # 0.6° aids on a filter aligned to 0.02°: the gate (next test) would refuse them.
+    h = Harness(ctx, aiding_gate_probability=1.0)
     try:
         aid_pub = h.probe.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
         h.send([raw(EPOCH_NS + k * PERIOD_NS) for k in range(400)])
@@ -201,6 +202,38 @@ def test_attitude_aiding_full_heading_only_and_malformed(ctx):
         assert h.spin_until(lambda: any(
             {kv.key: kv.value for kv in d.status[0].values}.get('attitude_aiding_used') == '2'
             for d in h.diags))
+    finally:
+        h.close()
+
+
+def test_inconsistent_aiding_is_rejected_counted_and_reported(ctx):
+    h = Harness(ctx)
+    try:
+        aid_pub = h.probe.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
+        h.send([raw(EPOCH_NS + k * PERIOD_NS) for k in range(400)])
+        assert h.spin_until(lambda: len(h.out) >= 350)
+        deadline = time.monotonic() + 5.0
+        while aid_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            h.executor.spin_once(timeout_sec=0.02)
+        rpy_before = h.node.compensator.filter.rpy_rad
+        # The aligned filter is sure of its attitude to 0.02°: an aid 0.6° away in roll
+        # that claims 0.0002° is inconsistent with it.
+        half = 0.5 * 0.01
+        aid_pub.publish(aid(EPOCH_NS + 300 * PERIOD_NS, [math.sin(half), 0.0, 0.0, math.cos(half)],
+                            np.diag([1e-11, 1, 1])))
+        s = h.node.compensator.stats
+        assert h.spin_until(lambda: s.aiding_rejected >= 1)
+        assert (s.aiding_used, s.aiding_inconsistent) == (0, 1)
+        np.testing.assert_array_equal(h.node.compensator.filter.rpy_rad, rpy_before)
+
+        def reported(d):
+            values = {kv.key: kv.value for kv in d.status[0].values}
+            return values.get('attitude_aiding_inconsistent') == '1' \
+                and d.status[0].message.startswith('attitude aiding inconsistent')
+        assert h.spin_until(lambda: any(reported(d) for d in h.diags))
+        values = {kv.key: kv.value for kv in h.diags[-1].status[0].values}
+        for key in ('attitude_aiding_resets', 'attitude_aiding_reinitialisations'):
+            assert values[key] == '0'
     finally:
         h.close()
 

@@ -206,6 +206,17 @@ class AttitudeFilterConfig:
             raise ValueError('update_period_s must not exceed pull_window_s')
 
 
+def left_jacobian(phi):
+    """J_l(φ) of SO(3): Exp(φ + δ) = Exp(J_l(φ)·δ)·Exp(φ) + O(δ²)."""
+    phi = np.asarray(phi, dtype=float)
+    angle = float(np.linalg.norm(phi))
+    k = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if angle < 1e-6:
+        return np.eye(3) + 0.5 * k + k @ k / 6.0
+    return (np.eye(3) + (1.0 - math.cos(angle)) / angle ** 2 * k
+            + (angle - math.sin(angle)) / angle ** 3 * (k @ k))
+
+
 def _wrap(angle_rad):
     """Wrap a float angle to [−π, π)."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
@@ -231,6 +242,8 @@ class AttitudeFilter:
         self.config = config or AttitudeFilterConfig()
         self.initialized = False
         self._sway_ref2 = 0.0
+        #: How far back a delayed aid may reach, s (the caller's attitude history).
+        self.delayed_horizon_s = 2.0
         self.initialize()
         self.initialized = False
 
@@ -276,6 +289,14 @@ class AttitudeFilter:
             self._P_true = self.P.copy()
             self._P_true[6:, 6:] = np.eye(3) * self.config.gyro_scale_factor_std ** 2
         self._last_gyro = None if gyro_rps is None else [float(v) for v in gyro_rps]
+        # Every correction the updates made since the start, composed (map frame,
+        # R = C·U with U the gyro integral alone): delayed aiding needs it at its stamp.
+        self._correction_q = [0.0, 0.0, 0.0, 1.0]
+        # ∫R dt (9, row-major) and ∫R·b dt (3, b the bias estimate in use) over the
+        # integrated time, up to the last covariance flush (the rest: _sum_r_dt,
+        # _sum_rb_dt); see lag_integrals.
+        self._int_a = [0.0] * 9
+        self._int_rb = [0.0] * 3
         self._reset_accumulators()
         self.initialized = True
 
@@ -284,9 +305,17 @@ class AttitudeFilter:
         # (the scale-factor coupling) and Σ dt_i.
         self._sum_r_dt = [0.0] * 9
         self._sum_rw_dt = [0.0] * 9
+        self._sum_rb_dt = [0.0] * 3
         self._pending_dt = 0.0
         self._pending_bias_dt = 0.0
-        self._pending_extra_var = 0.0
+        self._pending_extra_cov = np.zeros((3, 3))
+        # The unknown motion over each IMU gap, kept apart for delayed aiding: per gap its
+        # filter-clock time, its attitude variance Q_g (3, 3) and the covariance M_g
+        # (N_STATES, 3) of the error state with it, which the propagation and every
+        # update carry on like the state (a delayed aid measures the attitude before the
+        # gaps after its stamp: see update_aiding).
+        self._gap_terms = []
+        self._pending_gap_clock_s = 0.0
         # Zero-rate update: sum of gyro readings and their count while standing.
         self._zaru_sum = [0.0, 0.0, 0.0]
         self._zaru_n = 0
@@ -340,8 +369,9 @@ class AttitudeFilter:
             Verdict of the zero-velocity detector for this sample.
         sample_rate_hz : float
             Nominal IMU rate (noise per sample in the zero-rate update), Hz.
-        extra_attitude_var_rad2 : float
-            Variance added on every attitude axis, rad² (unknown motion over a gap).
+        extra_attitude_var_rad2 : float or array_like (3,)
+            Attitude variance added for unknown motion (over a gap), rad²: the same on
+            every axis, or one per ``base_link`` axis (rotated into the map frame).
         """
         gx, gy, gz = (float(v) for v in gyro_rps)
         if stationary:
@@ -351,7 +381,9 @@ class AttitudeFilter:
         else:
             self._propagate(gx, gy, gz, dt_s)
         self._pending_bias_dt += dt_s
-        self._pending_extra_var += extra_attitude_var_rad2
+        if np.any(extra_attitude_var_rad2):
+            self._add_extra_attitude_variance(extra_attitude_var_rad2)
+            self._pending_gap_clock_s = self._clock_s + dt_s
         c = self.config
         if stationary:
             s = self._zaru_sum
@@ -393,6 +425,14 @@ class AttitudeFilter:
                 self._apply_pull(self._since_pull)
             self._since_pull = 0.0
 
+    def _add_extra_attitude_variance(self, var_rad2):
+        var = np.asarray(var_rad2, dtype=float)
+        if var.ndim == 0:
+            self._pending_extra_cov += np.eye(3) * float(var)
+        else:
+            r = quat_to_matrix(np.array(self._q))
+            self._pending_extra_cov += (r * var.reshape(3)) @ r.T
+
     def _propagate(self, gx, gy, gz, dt):
         prev = self._last_gyro or (gx, gy, gz)
         self._last_gyro = (gx, gy, gz)
@@ -416,6 +456,11 @@ class AttitudeFilter:
              2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y))
         self._step_r = r
         self._sum_r_dt = [a + b * dt for a, b in zip(self._sum_r_dt, r)]
+        rb = self._sum_rb_dt
+        b0, b1, b2 = b
+        rb[0] += (r[0] * b0 + r[1] * b1 + r[2] * b2) * dt
+        rb[1] += (r[3] * b0 + r[4] * b1 + r[5] * b2) * dt
+        rb[2] += (r[6] * b0 + r[7] * b1 + r[8] * b2) * dt
         self._sum_rw_dt = [a + b * w for a, b, w in zip(
             self._sum_rw_dt, r, (wx, wy, wz, wx, wy, wz, wx, wy, wz))]
         self._pending_dt += dt
@@ -439,16 +484,28 @@ class AttitudeFilter:
         f = np.eye(N_STATES)
         f[:3, 3:6] = -np.array(self._sum_r_dt).reshape(3, 3)
         f[:3, 6:] = -np.array(self._sum_rw_dt).reshape(3, 3)
-        q_att = c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt + self._pending_extra_var
+        q_att = c.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
         q_bias = c.gyro_bias_random_walk_rps2_rthz ** 2 * self._pending_bias_dt
-        q = np.zeros(N_STATES)
-        q[:3], q[3:6] = q_att, q_bias
-        self._map_covariances(lambda p: f @ p @ f.T + np.diag(q))
+        q = np.zeros((N_STATES, N_STATES))
+        q[:3, :3] = np.eye(3) * q_att + self._pending_extra_cov
+        q[3:6, 3:6] = np.eye(3) * q_bias
+        self._map_covariances(lambda p: f @ p @ f.T + q)
+        for term in self._gap_terms:
+            term[2] = f @ term[2]
+        if np.any(self._pending_extra_cov):
+            m = np.zeros((N_STATES, 3))
+            m[:3] = self._pending_extra_cov
+            self._gap_terms.append([self._pending_gap_clock_s, self._pending_extra_cov, m])
+        horizon = self._clock_s - self.delayed_horizon_s
+        self._gap_terms = [t for t in self._gap_terms if t[0] >= horizon]
+        self._int_a = [a + b for a, b in zip(self._int_a, self._sum_r_dt)]
+        self._int_rb = [a + b for a, b in zip(self._int_rb, self._sum_rb_dt)]
         self._sum_r_dt = [0.0] * 9
         self._sum_rw_dt = [0.0] * 9
+        self._sum_rb_dt = [0.0] * 3
         self._pending_dt = 0.0
         self._pending_bias_dt = 0.0
-        self._pending_extra_var = 0.0
+        self._pending_extra_cov = np.zeros((3, 3))
 
     # ------------------------------------------------------------------ updates
     def _accumulate_pull(self, dt, sway2):
@@ -587,37 +644,121 @@ class AttitudeFilter:
         self._update(h, np.array([a @ resid for a in axes]), np.full(len(axes), var),
                      estimate_scale=False)
 
-    def update_heading(self, yaw_innovation_rad, variance_rad2):
-        """External heading aiding: ``yaw_innovation_rad = yaw_measured − yaw_estimated``.
+    def aiding_statistics(self, h, innovation, covariance, since_s=None, g=None):
+        """What an aiding update would do, without doing it.
 
-        The caller forms the innovation against the estimate at the measurement's own
-        time (see :class:`~imu_compensator.core.compensator.AttitudeCompensator`), so a
-        delayed measurement corrects the current state without re-filtering.
+        Parameters are those of :meth:`update_aiding`.
+
+        Returns
+        -------
+        (float, ndarray (3,))
+            The innovation's squared Mahalanobis distance under the state's covariance
+            plus the measurement's (nan when that is not positive definite), and the
+            attitude correction (map axes, rad) a linear update would apply.
+        """
+        self._flush_covariance()
+        h, innovation, r = self._aiding_arrays(h, innovation, covariance)
+        p = self.P if self._P_true is None else self._P_true   # with the scale prior
+        pz, s, _ = self._delayed_moments(p, h, r, since_s, g)
+        try:
+            np.linalg.cholesky(s)
+        except np.linalg.LinAlgError:
+            return float('nan'), np.zeros(3)
+        w = np.linalg.solve(s, innovation)
+        return float(innovation @ w), pz[:3] @ w
+
+    def update_aiding(self, h, innovation, covariance, since_s=None, g=None, reset=False,
+                      inflate_rad2=None):
+        """Fuse an external attitude or heading measurement.
+
+        Parameters
+        ----------
+        h : array_like (m, N_STATES)
+            What it measures, as rows on the current error state (for a measurement
+            taken earlier: the attitude error then is the current one plus the drift
+            the bias and scale errors caused since, see
+            :class:`~imu_compensator.core.compensator.AttitudeCompensator`).
+        innovation : array_like (m,)
+            Measurement minus estimate, rad.
+        covariance : array_like (m, m)
+            The measurement's covariance, rad².
+        since_s : float, optional
+            Filter clock (:attr:`clock_s`) of the measurement's stamp. The unknown motion
+            over the IMU gaps after it is in the current attitude error but not in the
+            measured one: z = H·x − G·n + e, with ``n`` their sum, whose covariance with
+            the state the filter keeps; the update is then exact (to first order)
+            instead of taking the measurement for one of the present.
+        g : array_like (m, 3), optional
+            G: how that motion enters the measurement (default: the attitude columns of
+            ``h``).
+        reset : bool
+            Apply as an attitude reset: the bias and scale factors are consider states
+            of this update (gain rows zeroed, covariance updated for that gain), so only
+            the attitude moves. For a correction too large for the linearisation: the
+            cross-covariances were built with Jacobians taken at an attitude now known
+            to be that far off, good enough to weigh the measurement but not to move
+            the bias and scale by.
+        inflate_rad2 : array_like (3, 3), optional
+            Added to the attitude covariance first (re-initialisation).
         """
         self._flush_covariance()
         self._activate_scale()
-        if variance_rad2 <= AIDED_AXIS_STD_RAD ** 2:
-            self._aided_at_s[2] = self._clock_s
-        h = np.zeros((1, N_STATES))
-        h[0, 2] = 1.0
-        self._update(h, np.array([_wrap(float(yaw_innovation_rad))]), np.array([variance_rad2]))
-
-    def update_attitude(self, innovation_rad, covariance_rad2):
-        """External attitude aiding: ``innovation_rad`` (3,) is the small rotation about
-        the map axes from the estimate to the measurement (``R_meas = Exp(δ)·R_est``),
-        ``covariance_rad2`` (3, 3) the measurement's covariance (it may be large about
-        an axis the measurement cannot see). Same timing rule as :meth:`update_heading`.
-        """
-        self._flush_covariance()
-        self._activate_scale()
-        info = np.linalg.inv(np.asarray(covariance_rad2, float).reshape(3, 3))
+        h, innovation, r = self._aiding_arrays(h, innovation, covariance)
+        att = h[:, :3]
+        info = att.T @ np.linalg.solve(r, att)
         for k, axis in enumerate(self._pull_axes()):
             if axis @ info @ axis >= AIDED_AXIS_STD_RAD ** -2:
                 self._aided_at_s[k] = self._clock_s
-        h = np.zeros((3, N_STATES))
-        h[:, :3] = np.eye(3)
-        self._update(h, np.asarray(innovation_rad, float).reshape(3),
-                     np.asarray(covariance_rad2, float).reshape(3, 3))
+        if inflate_rad2 is not None:
+            self.P[:3, :3] += np.asarray(inflate_rad2, float).reshape(3, 3)
+        pz, s, g = self._delayed_moments(self.P, h, r, since_s, g)
+        gain = np.linalg.solve(s, pz.T).T
+        if reset:
+            gain[3:] = 0.0
+        # Cov(z, n_g) = H·M_g − G·Q_g for a gap after the stamp, H·M_g for one before.
+        cross = [(h @ m - (g @ q if since_s is not None and when > since_s else 0.0))
+                 for when, q, m in self._gap_terms]
+        dx = gain @ innovation
+        self._apply_correction(dx)
+        for term, c in zip(self._gap_terms, cross):
+            term[2] = term[2] - gain @ c
+        # Error after: e − K·z with Cov(e, z) = pz, Cov(z) = S; any gain K.
+        kp = gain @ pz.T
+        p = self.P - kp - kp.T + gain @ s @ gain.T
+        # ... about the corrected attitude: δθ' = log(Exp(δθ)·Exp(−dx)) ≈ J_l(dx)·(δθ − dx).
+        # Negligible for the small corrections of the other updates, not for an aid that
+        # turns the attitude by degrees while leaving degrees unseen along its line of
+        # sight (a 28° reset left 0.6° of that in the seen plane, 3.5σ).
+        j = left_jacobian(dx[:3])
+        p[:3] = j @ p[:3]
+        p[:, :3] = p[:, :3] @ j.T
+        for term in self._gap_terms:
+            term[2][:3] = j @ term[2][:3]
+        self.P = 0.5 * (p + p.T)
+
+    def _delayed_moments(self, p, h, r, since_s, g):
+        """(Cov(x, z) (N, m), Cov(z) (m, m), G (m, 3)) of z = H·x − G·n + e, with n the
+        unknown motion over the gaps after ``since_s`` (none when it is None).
+        """
+        g = h[:, :3] if g is None else np.asarray(g, float).reshape(-1, 3)
+        pz = p @ h.T
+        s = h @ pz + r
+        if since_s is not None:
+            after = [(q, m) for when, q, m in self._gap_terms if when > since_s]
+            if after:
+                m = sum(t[1] for t in after)
+                q = sum(t[0] for t in after)
+                pz = pz - m @ g.T
+                hm = h @ m @ g.T
+                s = s - hm - hm.T + g @ q @ g.T
+        return pz, 0.5 * (s + s.T), g
+
+    @staticmethod
+    def _aiding_arrays(h, innovation, covariance):
+        h = np.asarray(h, float).reshape(-1, N_STATES)
+        m = h.shape[0]
+        return (h, np.asarray(innovation, float).reshape(m),
+                np.asarray(covariance, float).reshape(m, m))
 
     def _activate_scale(self):
         """At the first external aiding: the scale factors become states, with the
@@ -654,10 +795,21 @@ class AttitudeFilter:
         gain = np.linalg.solve(s, ph.T).T
         if not estimate_scale:
             gain[6:, :] = 0.0
-        dx = gain @ innovation
+        self._apply_correction(gain @ innovation)
+        ikh = np.eye(N_STATES) - gain @ h
+        for term in self._gap_terms:
+            term[2] = ikh @ term[2]
+        noise = gain @ r @ gain.T
+        self._map_covariances(lambda p: ikh @ p @ ikh.T + noise)
+
+    def _apply_correction(self, dx):
+        """Error state (N_STATES,) → estimate, with the pull window's bookkeeping."""
         before = _rpy_of(*self._q)
-        q = quat_multiply(quat_from_rotvec(dx[:3]), np.array(self._q))
+        step = quat_from_rotvec(dx[:3])
+        q = quat_multiply(step, np.array(self._q))
         self._q = [float(v) for v in q / np.linalg.norm(q)]
+        c = quat_multiply(step, np.array(self._correction_q))
+        self._correction_q = [float(v) for v in c / np.linalg.norm(c)]
         after = _rpy_of(*self._q)
         for k in range(3):
             self._corr[k] += _wrap(after[k] - before[k])
@@ -670,9 +822,6 @@ class AttitudeFilter:
         self._g_ref = self._g_now().tolist()
         self._a_ref = list(self._cum_a)
         self._bias_corr = (np.array(self._bias_corr) + dx[3:6]).tolist()
-        ikh = np.eye(N_STATES) - gain @ h
-        noise = gain @ r @ gain.T
-        self._map_covariances(lambda p: ikh @ p @ ikh.T + noise)
 
     # ------------------------------------------------------------------ outputs
     def corrected_rate(self, gyro_rps):
@@ -686,6 +835,29 @@ class AttitudeFilter:
         return -q if q[3] < 0.0 else q
 
     @property
+    def clock_s(self):
+        """Filter time since the start (sum of the sample intervals), s."""
+        return self._clock_s
+
+    @property
+    def correction_quat(self):
+        """Every correction the updates made since the start, composed (4,) x, y, z, w:
+        the estimate is ``C·U`` with ``U`` the integral of the gyro alone.
+        """
+        return np.array(self._correction_q)
+
+    def lag_integrals(self):
+        """(∫R dt (9,) row-major, ∫R·b dt (3,)) since the start, over the time the gyro was
+        integrated (``R`` the attitude, ``b`` the bias estimate in use at each sample).
+
+        Between two instants their differences give what a delayed measurement needs:
+        the bias-error coupling ``A`` of the attitude error (δθ_then = δθ_now + A·δb) and
+        the attitude the bias corrections made since explain (``A·b_now − Δ∫R·b dt``).
+        """
+        return ([a + b for a, b in zip(self._int_a, self._sum_r_dt)],
+                [a + b for a, b in zip(self._int_rb, self._sum_rb_dt)])
+
+    @property
     def rpy_rad(self):
         """Roll, pitch, yaw (3,) of ``base_link`` in ``map``, rad (R = Rz·Ry·Rx)."""
         return np.array(_rpy_of(*self._q))
@@ -697,11 +869,9 @@ class AttitudeFilter:
         The covariance is propagated once per update period; the gyro noise of the
         samples since then is added here (the bias coupling over < 0.1 s is negligible).
         """
-        pending = (self.config.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
-                   + self._pending_extra_var)
         cov = (self.P if self._P_true is None else self._P_true)[:3, :3].copy()
-        cov.flat[::4] += pending
-        return cov
+        cov.flat[::4] += self.config.gyro_noise_density_rps_rthz ** 2 * self._pending_dt
+        return cov + self._pending_extra_cov
 
     @property
     def gyro_bias_std_rps(self):

@@ -139,7 +139,12 @@ class ZeroVelocityDetector:
             return np.full(6, np.nan)
         return self._s1 / self._n + self._offset
 
-    @property
-    def rate_rms_rps(self):
-        """RMS of the gyro's variation over the window (norm of the per-axis σ), rad/s."""
-        return float(np.sqrt(np.sum(np.square(self.gyro_std_rps))))
+    def gyro_rms_rps(self, gyro_bias_rps):
+        """Per-axis RMS (3,) of the gyro less ``gyro_bias_rps`` over the samples the window
+        holds so far (full or not), rad/s; nan when it is empty.
+        """
+        if self._n == 0:
+            return np.full(3, np.nan)
+        mean = self._s1[:3] / self._n
+        var = np.maximum(self._s2[:3] / self._n - mean * mean, 0.0)
+        return np.sqrt(var + np.square(mean + self._offset[:3] - gyro_bias_rps))
