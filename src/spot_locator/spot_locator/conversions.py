@@ -47,7 +47,8 @@ def _raw_camera(info, force=False):
     """(K, D, R, P, distortion_model) of a camera whose images are not rectified (flat
     tuples of floats), None for a rectified one (D = 0, R = I or all zero, P[:, :3] = K,
     or no K at all: only P given) unless ``force``; forced without K, K = P[:, :3].
-    Raises ValueError (CameraModelError) for an invalid model."""
+    Raises ValueError (CameraModelError) for an invalid model.
+    """
     K = np.asarray(info.k, float).reshape(3, 3)
     D = np.asarray(info.d, float).ravel()
     R = np.asarray(info.r, float).reshape(3, 3)

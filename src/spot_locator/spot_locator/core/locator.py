@@ -65,7 +65,8 @@ class StereoGeometry:
 
     def camera_models(self):
         """(left, right) :class:`vlc_common.core.camera.CameraModel` of the raw cameras,
-        or None when the images are rectified."""
+        or None when the images are rectified.
+        """
         if self.raw_cameras is None:
             return None
         from vlc_common.core.camera import CameraModel
