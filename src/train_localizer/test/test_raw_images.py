@@ -51,7 +51,8 @@ def _msg(info):
 
 def _as_if_rectified(msg):
     """The same camera_info with the lens and the rectification left out (D = 0, R = I,
-    K = P[:, :3]): what a receiver that assumes rectified images uses."""
+    K = P[:, :3]): what a receiver that assumes rectified images uses.
+    """
     p = np.reshape(msg.p, (3, 4))
     return CameraInfo(width=msg.width, height=msg.height, distortion_model='plumb_bob',
                       d=[0.0] * 5, k=[float(x) for x in p[:, :3].ravel()],
@@ -60,7 +61,8 @@ def _as_if_rectified(msg):
 
 def _run(lamp_map, optics_truth, speed_kmh=0.0, rectify=True, starts=STARTS_M):
     """Per lamp seen in both images: (along-track m, position error m or inf if no pair,
-    the pair's stamp offset − the truth's s or nan)."""
+    the pair's stamp offset − the truth's s or nan).
+    """
     config = RendererConfig(optics_truth=optics_truth, **TIMING)
     rig = config.rig()
     out = []
@@ -112,7 +114,8 @@ def _run(lamp_map, optics_truth, speed_kmh=0.0, rectify=True, starts=STARTS_M):
 
 def test_raw_images_triangulate_like_the_ideal_pinhole_pair(lamp_map):
     """Standing: the raw rig's lamps are found to the centimetre, as the ideal pinhole
-    rig's; read as if rectified, the same raw images give no such fixes."""
+    rig's; read as if rectified, the same raw images give no such fixes.
+    """
     ideal = _run(lamp_map, None)
     raw = _run(lamp_map, OpticsTruth.example())
     control = _run(lamp_map, OpticsTruth.example(), rectify=False, starts=(11.0, 15.5))
@@ -133,7 +136,8 @@ def test_raw_images_triangulate_like_the_ideal_pinhole_pair(lamp_map):
 
 def test_raw_images_in_motion(lamp_map):
     """At 100 km/h the right spot is exposed on other rows and 15 µs late: it is moved
-    back to the left centre's instant before the common row and the disparity."""
+    back to the left centre's instant before the common row and the disparity.
+    """
     raw = _run(lamp_map, OpticsTruth.example(), speed_kmh=100.0, starts=(11.0, 15.5))
     near = raw[:, 0] < IDEAL_FAR_M
     assert near.sum() == 2, raw
@@ -159,7 +163,8 @@ def test_decoder_positions_are_rectified_for_the_join():
 
 def test_camera_info_of_raw_images_turns_the_camera_axes(lamp_map):
     """The localizer's camera axes become R_base_cam·Rᵀ (the rectified frame) and the
-    join gets the left camera's raw → rectified map; ideal camera_info changes nothing."""
+    join gets the left camera's raw → rectified map; ideal camera_info changes nothing.
+    """
     config = RendererConfig(optics_truth=OpticsTruth.example())
     renderer = StereoRenderer(config, lamp_map, Trajectory(MotionProfile('stationary')),
                               seed=1)
