@@ -7,7 +7,9 @@ Subscribes (relative names):
   and right are paired by identical stamps.
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
   reliable, transient local, depth 1): the rectified geometry (P matrices, right
-  ``P[0,3] = −fx·b``). Images are skipped until both have arrived. The last good one of
+  ``P[0,3] = −fx·b``); with D ≠ 0 or R ≠ I the images are raw and each spot centre is
+  mapped through its camera's K, D, R, P (``spots/pairs`` is in rectified pixels,
+  stamped by the left centre's raw row). Images are skipped until both have arrived. The last good one of
   each camera is kept (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one
   (zero or NaN K/P) is refused with a throttled warning, a different valid one (another
   size) is taken only once it came three times in a row.
