@@ -9,10 +9,11 @@ Subscribes (relative names):
   reliable, transient local, depth 1): the rectified geometry (P matrices, right
   ``P[0,3] = −fx·b``); with D ≠ 0 or R ≠ I the images are raw and each spot centre is
   mapped through its camera's K, D, R, P (``spots/pairs`` is in rectified pixels,
-  stamped by the left centre's raw row). Images are skipped until both have arrived. The last good one of
-  each camera is kept (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one
-  (zero or NaN K/P) is refused with a throttled warning, a different valid one (another
-  size) is taken only once it came three times in a row.
+  stamped by the left centre's raw row). Images are skipped until both have arrived.
+  The last good one of each camera is kept
+  (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one (zero or NaN K/P)
+  is refused with a throttled warning, a different valid one (another size) is taken
+  only once it came three times in a row.
 * ``train/odometry`` (nav_msgs/Odometry; reliable, depth 10): train speed for the
   exposure blur (|twist.linear|). Without a recent one the ``assumed_speed_mps``
   parameter is used.
