@@ -6,6 +6,7 @@
 import numpy as np
 
 from spot_locator.core.locator import StereoGeometry
+from vlc_common.camera_info import raw_camera_model
 from vlc_common.core.camera import CameraModel
 from vlc_common.core.records import PAIR_DTYPE  # noqa: F401 (re-exported)
 from vlc_common.images import image_to_array  # noqa: F401 (re-exported)
@@ -44,26 +45,19 @@ def stereo_geometry(left_info, right_info):
 
 
 def _raw_camera(info, force=False):
-    """(K, D, R, P, distortion_model) of a camera whose images are not rectified (flat
-    tuples of floats), None for a rectified one (D = 0, R = I or all zero, P[:, :3] = K,
-    or no K at all: only P given) unless ``force``; forced without K, K = P[:, :3].
+    """(K, D, R, P, distortion_model) of a camera whose images are raw, as flat tuples
+    of floats (:func:`vlc_common.camera_info.raw_camera_model`); None for a rectified
+    one unless ``force`` (then its own K, D = 0, R = I, or K = P[:, :3] without a K).
     Raises ValueError (CameraModelError) for an invalid model.
     """
-    K = np.asarray(info.k, float).reshape(3, 3)
-    D = np.asarray(info.d, float).ravel()
-    R = np.asarray(info.r, float).reshape(3, 3)
-    P = np.asarray(info.p, float).reshape(3, 4)
-    if not np.any(R):
-        R = np.eye(3)
-    if not np.any(K):
+    model = raw_camera_model(info)
+    if model is None:
         if not force:
             return None
-        K = P[:, :3]
-    if not force and not np.any(D) and np.array_equal(R, np.eye(3)) and np.array_equal(
-            P[:, :3], K):
-        return None
-    model = CameraModel(int(info.width), int(info.height), K, D, R, P,
-                        info.distortion_model or 'plumb_bob')
+        P = np.asarray(info.p, float).reshape(3, 4)
+        K = np.asarray(info.k, float).reshape(3, 3)
+        model = CameraModel(int(info.width), int(info.height), K if np.any(K) else P[:, :3],
+                            None, None, P)
     return (tuple(model.K.ravel()), tuple(model.D), tuple(model.R.ravel()),
             tuple(model.P.ravel()), model.distortion_model)
 

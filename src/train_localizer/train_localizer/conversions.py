@@ -20,8 +20,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 
-from vlc_common.camera_info import CameraInfoKeeper
-from vlc_common.core.camera import CameraModel
+from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.observation import ImuSample
 from vlc_common.core.records import LAMP_DTYPE, PAIR_DTYPE
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
@@ -105,24 +104,6 @@ def intrinsics_from_camera_info(left, right):
     if not baseline > 0.0:
         raise ValueError(f'stereo baseline {baseline} m is not positive')
     return float(fx), float(fy), float(pl[0, 2]), float(pl[1, 2]), float(baseline)
-
-
-def raw_camera_model(info):
-    """The :class:`~vlc_common.core.camera.CameraModel` of a camera whose images are raw,
-    None when they are rectified already (D = 0, R = I or all zero, P[:, :3] = K, or no
-    K: only P given). Raises ValueError (CameraModelError) for an invalid model.
-    """
-    K = np.asarray(info.k, float).reshape(3, 3)
-    D = np.asarray(info.d, float).ravel()
-    R = np.asarray(info.r, float).reshape(3, 3)
-    P = np.asarray(info.p, float).reshape(3, 4)
-    if not np.any(R):
-        R = np.eye(3)
-    if not np.any(K) or (not np.any(D) and np.array_equal(R, np.eye(3))
-                         and np.array_equal(P[:, :3], K)):
-        return None
-    return CameraModel(int(info.width), int(info.height), K, D, R, P,
-                       info.distortion_model or 'plumb_bob')
 
 
 class CameraInfoIntrinsics:
