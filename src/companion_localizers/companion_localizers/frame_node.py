@@ -119,7 +119,8 @@ class ImuFrameNode(Node):
         self._warnings = ThrottledWarnings(self.get_logger(), self.params['warn_throttle_s'],
                                            clock=self._now_s)
         self._intrinsics = conversions.CameraInfoIntrinsics(self.core.config.geometry,
-                                                            p['use_camera_info'])
+                                                            p['use_camera_info'],
+                                                            self.joiner.config)
         self._published = 0
         self._last_pose = None
         self._join_timer = conversions.CpuTimer()

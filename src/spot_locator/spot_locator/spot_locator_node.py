@@ -7,10 +7,13 @@ Subscribes (relative names):
   and right are paired by identical stamps.
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
   reliable, transient local, depth 1): the rectified geometry (P matrices, right
-  ``P[0,3] = −fx·b``). Images are skipped until both have arrived. The last good one of
-  each camera is kept (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one
-  (zero or NaN K/P) is refused with a throttled warning, a different valid one (another
-  size) is taken only once it came three times in a row.
+  ``P[0,3] = −fx·b``); with D ≠ 0 or R ≠ I the images are raw and each spot centre is
+  mapped through its camera's K, D, R, P (``spots/pairs`` is in rectified pixels,
+  stamped by the left centre's raw row). Images are skipped until both have arrived.
+  The last good one of each camera is kept
+  (:class:`vlc_common.camera_info.CameraInfoKeeper`): an invalid one (zero or NaN K/P)
+  is refused with a throttled warning, a different valid one (another size) is taken
+  only once it came three times in a row.
 * ``train/odometry`` (nav_msgs/Odometry; reliable, depth 10): train speed for the
   exposure blur (|twist.linear|). Without a recent one the ``assumed_speed_mps``
   parameter is used.
@@ -107,6 +110,10 @@ NODE_PARAMETERS = (
                                       'ignored, s.', 0.0, 3600.0)),
     ('row_time_s', 30e-6, _desc('Rolling-shutter line time, s.', 1e-7, 1e-3)),
     ('exposure_s', 25e-6, _desc('Exposure time of each row, s.', 1e-7, 0.1)),
+    ('trigger_skew_s', 0.0, _desc('The right camera\'s row r is exposed this long after the '
+                                  'left camera\'s row r (camera_info has no field for it), '
+                                  's; a moving lamp\'s right centre is moved back to the '
+                                  'left one\'s instant.', -0.01, 0.01)),
     ('vignetting', 'cos4', _desc("Lens fall-off removed before measuring: 'cos4' | 'none'.",
                                  ptype=_STR)),
     ('threshold_snr', 6.0, _desc('Detection threshold above background, noise sigmas.',
@@ -165,6 +172,7 @@ class SpotLocatorNodeConfig:
     odometry_timeout_s: float
     row_time_s: float
     exposure_s: float
+    trigger_skew_s: float
     vignetting: str
     threshold_snr: float
     min_threshold_dn: float
@@ -205,6 +213,7 @@ class SpotLocatorNodeConfig:
             wiener=self.wiener, wiener_balance=self.wiener_balance,
             min_blur_px=self.min_blur_px, train_velocity_cam_mps=tuple(velocity_cam),
             row_time_s=self.row_time_s, exposure_s=self.exposure_s,
+            trigger_skew_s=self.trigger_skew_s,
             reject_border_spots=self.reject_border_spots, vignetting=self.vignetting,
             detect=DetectConfig(threshold_snr=self.threshold_snr,
                                 min_threshold_dn=self.min_threshold_dn,

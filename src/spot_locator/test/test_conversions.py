@@ -89,3 +89,47 @@ def test_config_file_documents_every_parameter_with_its_default():
     path = pathlib.Path(__file__).resolve().parents[1] / 'config' / 'spot_locator_node.yaml'
     values = yaml.safe_load(path.read_text())['/**']['ros__parameters']
     assert values == {name: default for name, default, _ in NODE_PARAMETERS}
+
+
+def _raw_info(K, D, R, P):
+    return CameraInfo(width=1280, height=720, distortion_model='plumb_bob',
+                      d=[float(x) for x in D], k=[float(x) for x in np.ravel(K)],
+                      r=[float(x) for x in np.ravel(R)], p=[float(x) for x in np.ravel(P)])
+
+
+def test_stereo_geometry_of_raw_images_maps_centres_to_the_rectified_image():
+    """A point seen through a known plumb_bob lens, K, R and P (distorted with OpenCV's
+    projectPoints, not the project's model) comes back on its rectified projection
+    within 0.02 px, corners of the sensor included; ideal camera_info (D = 0, R = I,
+    P[:, :3] = K, or only P) keeps the rectified path.
+    """
+    import cv2
+    K = np.array([[1040.0, 0.0, 643.2], [0.0, 1041.5, 356.1], [0.0, 0.0, 1.0]])
+    D = np.array([-0.30, 0.10, 0.0008, -0.0005, -0.015])
+    R = cv2.Rodrigues(np.radians([0.05, -0.12, 0.03]))[0]
+    P = np.array([[1010.0, 0.0, 640.0, 0.0], [0.0, 1010.0, 360.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    Pr = P.copy()
+    Pr[0, 3] = -1010.0 * 0.12
+    g = conversions.stereo_geometry(_raw_info(K, D, R, P), _raw_info(K, D, R, Pr))
+    assert g.raw_cameras is not None and (g.fx, g.cx, g.baseline_m) == (1010.0, 640.0,
+                                                                         pytest.approx(0.12))
+    left, _ = g.camera_models()
+    # rays of the unrectified optical frame over the raw sensor, corners 20 px in
+    uv = np.array([[u, v] for u in (20.0, 330.0, 640.0, 950.0, 1260.0)
+                   for v in (20.0, 190.0, 360.0, 530.0, 700.0)])
+    rays = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, D,
+                               criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+                                         200, 1e-12)).reshape(-1, 2)
+    X = np.column_stack([rays, np.ones(len(rays))]) * 4.0
+    raw = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, D)[0].reshape(-1, 2)
+    rect_truth = (X @ R.T) @ P[:, :3].T
+    rect_truth = rect_truth[:, :2] / rect_truth[:, 2:3]
+    assert np.abs(raw - uv).max() < 1e-3                 # the rays do reach those pixels
+    assert np.abs(rect_truth - raw).max() > 20.0          # the lens matters there
+    np.testing.assert_allclose(left.rectify_points(raw), rect_truth, atol=0.02)
+    ideal = conversions.stereo_geometry(
+        _raw_info(P[:, :3], np.zeros(5), np.eye(3), P), _raw_info(P[:, :3], np.zeros(5),
+                                                                    np.eye(3), Pr))
+    assert ideal.raw_cameras is None and ideal.camera_models() is None
+    with pytest.raises(ValueError, match='R'):
+        conversions.stereo_geometry(_raw_info(K, D, 2.0 * R, P), _raw_info(K, D, R, Pr))

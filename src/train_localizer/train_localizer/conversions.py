@@ -7,7 +7,8 @@ Inputs:
   producers' (docs/arch/spot_locator.md, docs/arch/vlc_decoder.md) and are read in
   :mod:`train_localizer.core.join`;
 * ``imu/data`` (sensor_msgs/Imu) → :class:`~vlc_common.core.observation.ImuSample`;
-* ``stereo/*/camera_info`` → rectified intrinsics and baseline.
+* ``stereo/*/camera_info`` → rectified intrinsics and baseline; with raw images (D ≠ 0,
+  R ≠ I) the left camera's rectification rotation and raw → rectified pixel map.
 
 Outputs: a :class:`~train_localizer.core.reports.PoseEstimate` → PoseStamped,
 PoseWithCovarianceStamped and Odometry; the integrity status → DiagnosticStatus.
@@ -19,7 +20,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 
-from vlc_common.camera_info import CameraInfoKeeper
+from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.observation import ImuSample
 from vlc_common.core.records import LAMP_DTYPE, PAIR_DTYPE
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
@@ -116,13 +117,22 @@ class CameraInfoIntrinsics:
     (``(level, text)``, level ``info`` or ``warn``), else None. ``source`` says where
     the intrinsics came from: ``parameters`` until a usable pair arrived, then
     ``camera_info``.
+
+    Raw images (the left camera_info has D ≠ 0 or R ≠ I): the spot pairs are in the
+    rectified frame, which is the left optical frame turned by the left R, so the
+    geometry's camera axes become R_base_cam(mount)·Rᵀ; and ``join_config.rectify_left``
+    (when a join config is given) maps the decoder's raw left-image positions to
+    rectified pixels for the join.
     """
 
-    def __init__(self, geometry, enabled=True):
+    def __init__(self, geometry, enabled=True, join_config=None):
         self.geometry = geometry
         self.enabled = enabled
         self.keeper = CameraInfoKeeper()
         self.source = 'parameters'
+        self.join_config = join_config
+        self.left_model = None
+        self._R_base_cam_mount = np.array(geometry.R_base_cam, float)
 
     @property
     def infos(self):
@@ -143,15 +153,26 @@ class CameraInfoIntrinsics:
             return None
         try:
             fx, fy, cx, cy, baseline = intrinsics_from_camera_info(*both)
+            left_model = raw_camera_model(both[0])
+            raw_camera_model(both[1])
         except ValueError as exc:
             return 'warn', f'camera_info ignored: {exc}'
         g = self.geometry
         self.source = 'camera_info'
-        if (g.fx, g.fy, g.cx, g.cy, g.baseline_m) == (fx, fy, cx, cy, baseline):
+        R_base_cam = (self._R_base_cam_mount if left_model is None
+                      else self._R_base_cam_mount @ left_model.R.T)
+        self.left_model = left_model
+        if self.join_config is not None:
+            self.join_config.rectify_left = (None if left_model is None
+                                             else left_model.rectify_points)
+        if ((g.fx, g.fy, g.cx, g.cy, g.baseline_m) == (fx, fy, cx, cy, baseline)
+                and np.array_equal(g.R_base_cam, R_base_cam)):
             return None
         g.fx, g.fy, g.cx, g.cy, g.baseline_m = fx, fy, cx, cy, baseline
+        g.R_base_cam = R_base_cam
+        raw = '' if left_model is None else ', raw images (rectified through D, R, P)'
         return 'info', (f'intrinsics from camera_info: fx {fx:.2f} fy {fy:.2f} cx {cx:.2f} '
-                        f'cy {cy:.2f} px, baseline {baseline:.4f} m')
+                        f'cy {cy:.2f} px, baseline {baseline:.4f} m{raw}')
 
 
 def _fill_pose(pose_msg, est):

@@ -220,7 +220,8 @@ class TrainLocalizerNode(Node):
         self._fix_ms = deque(maxlen=500)
         self._latency_ms = deque(maxlen=500)
         self._intrinsics = conversions.CameraInfoIntrinsics(self.localizer_config.geometry,
-                                                            p['use_camera_info'])
+                                                            p['use_camera_info'],
+                                                            self.joiner.config)
         self._published = 0
         self._last_pose = None
         self._state = None

@@ -82,3 +82,37 @@ def test_a_changed_camera_info_is_taken_once_it_is_sent_repeatedly():
     assert keeper.current[0] is new
     with pytest.raises(ValueError):
         CameraInfoKeeper(confirm_count=0)
+
+
+def test_raw_camera_model_tells_raw_from_rectified_images():
+    """The rig's ideal pair (D = 0, R = I, P[:, :3] = K), an all-zero R and an empty D
+    are rectified images; a lens (D ≠ 0) or a rectification (R ≠ I) make them raw.
+    """
+    from vlc_common.camera_info import raw_camera_model
+    left, right = _infos()
+    assert raw_camera_model(left) is None and raw_camera_model(right) is None
+    assert raw_camera_model(_spoiled(left, r=[0.0] * 9, d=[])) is None
+    lens = _spoiled(left, d=[-0.3, 0.1, 0.0, 0.0, 0.0])
+    model = raw_camera_model(lens)
+    assert model is not None and model.D[0] == -0.3
+    # the principal point is not moved by the lens; a corner is
+    assert model.rectify_points([[639.5, 359.5]])[0] == pytest.approx([639.5, 359.5])
+    assert abs(model.rectify_points([[20.0, 20.0]])[0, 0] - 20.0) > 10.0
+    turned = _spoiled(left, r=[1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0])
+    assert raw_camera_model(turned) is not None
+    with pytest.raises(ValueError, match='R'):
+        raw_camera_model(_spoiled(left, r=[2.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0]))
+
+
+def test_a_new_lens_calibration_alone_is_a_change():
+    """D (or R) alone differing from the kept message is a different calibration: taken
+    after the confirmations like another K or P, not passed as the same.
+    """
+    keeper = CameraInfoKeeper()
+    left = _infos()[0]
+    assert keeper.update(0, left)[0] == CameraInfoKeeper.KEPT
+    lens = _spoiled(left, d=[-0.3, 0.1, 0.0, 0.0, 0.0])
+    assert keeper.update(0, lens)[0] == CameraInfoKeeper.PENDING
+    assert keeper.update(0, lens)[0] == CameraInfoKeeper.PENDING
+    assert keeper.update(0, lens)[0] == CameraInfoKeeper.KEPT
+    assert list(keeper.current[0].d) == [-0.3, 0.1, 0.0, 0.0, 0.0]

@@ -39,9 +39,33 @@ def camera_info_problem(msg):
     return None
 
 
+def raw_camera_model(msg):
+    """The :class:`~vlc_common.core.camera.CameraModel` of a camera whose images are raw
+    (D ≠ 0, R ≠ I or P[:, :3] ≠ K: pixels must be mapped through K, D, R, P to the
+    rectified image), None when its images are rectified already (D = 0 or empty,
+    R = I or all zero — an uncalibrated driver's — and P[:, :3] = K, or no K at all:
+    only P given). Raises ValueError (``CameraModelError``) when K, D, R, P are not a
+    valid camera model.
+    """
+    K = np.asarray(msg.k, dtype=float).reshape(3, 3)
+    D = np.asarray(msg.d, dtype=float).ravel()
+    R = np.asarray(msg.r, dtype=float).reshape(3, 3)
+    P = np.asarray(msg.p, dtype=float).reshape(3, 4)
+    if not np.any(R):
+        R = np.eye(3)
+    if not np.any(K) or (not np.any(D) and np.array_equal(R, np.eye(3))
+                         and np.array_equal(P[:, :3], K)):
+        return None
+    from vlc_common.core.camera import CameraModel
+    return CameraModel(int(msg.width), int(msg.height), K, D, R, P,
+                       msg.distortion_model or 'plumb_bob')
+
+
 def _key(msg):
+    # D, R and the model too: a new calibration may change the lens alone
     return (int(msg.width), int(msg.height), tuple(float(v) for v in msg.k),
-            tuple(float(v) for v in msg.p))
+            tuple(float(v) for v in msg.p), tuple(float(v) for v in msg.d),
+            tuple(float(v) for v in msg.r), str(msg.distortion_model))
 
 
 class CameraInfoKeeper:

@@ -240,3 +240,18 @@ def test_rig_at_120_kmh_every_lamp_is_one_track_and_confirmed_in_view():
     assert set(tracks) == set(range(0x1001, 0x1007))
     assert all(len(ids) == 1 for ids in tracks.values()), tracks
     assert set(confirmed) == set(tracks)
+
+
+def test_pair_spots_of_raw_images_compares_rectified_rows():
+    """Raw images: a lamp's two raw rows differ (a rotated right camera, other principal
+    points); with the cameras' raw → rectified maps the pair is found on one rectified
+    row, and without them (rows read as rectified) it is not.
+    """
+    from vlc_decoder.core.spots import Spot
+    left = [Spot(row0=100, row1=120, col0=600, col1=620, u=610.0, v=110.0, width_px=20.0)]
+    right = [Spot(row0=108, row1=128, col0=570, col1=590, u=580.0, v=118.0, width_px=20.0)]
+    pairs = pair_spots(left, right, 250.0)
+    assert all(a is None or b is None for a, b in pairs)
+    rectify = (lambda uv: np.asarray(uv) + [1.0, 0.5], lambda uv: np.asarray(uv) - [2.0, 7.5])
+    pairs = pair_spots(left, right, 250.0, rectify)
+    assert pairs == [(left[0], right[0])]

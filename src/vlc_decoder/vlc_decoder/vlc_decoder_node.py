@@ -45,7 +45,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from vlc_common.camera_info import CameraInfoKeeper
+from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.polled import take_pending
@@ -61,6 +61,10 @@ from vlc_decoder.core.config import DecoderConfig
 from vlc_decoder.core.tracker import ANOMALY, CONFIRMED, LampTracker
 
 WARN_THROTTLE_S = 2.0
+
+
+def _identity(uv):
+    return uv
 
 
 class StartupError(RuntimeError):
@@ -250,6 +254,25 @@ class VlcDecoderNode(Node):
         elif outcome == CameraInfoKeeper.PENDING:
             self._warn(f'camera_info_pending_{side}', f'{("left", "right")[side]} camera_info '
                        f'{reason}')
+        elif outcome == CameraInfoKeeper.KEPT:
+            self._update_rectify()
+
+    def _update_rectify(self):
+        """Raw images (camera_info with D ≠ 0 or R ≠ I): pair the spots on rectified rows."""
+        both = self.camera_infos.both()
+        if both is None:
+            return
+        try:
+            models = [raw_camera_model(m) for m in both]
+        except ValueError as exc:
+            self._warn('camera_info_model', f'camera_info lens model unusable, spots paired '
+                       f'on raw rows: {exc}')
+            models = [None, None]
+        if all(m is None for m in models):
+            self.tracker.rectify = None
+        else:
+            self.tracker.rectify = tuple(_identity if m is None else m.rectify_points
+                                         for m in models)
 
     def _on_image(self, side, msg):
         """Pair by stamp and decode the newest complete pair: the images that arrived

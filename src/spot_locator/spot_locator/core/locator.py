@@ -1,4 +1,11 @@
-"""The spot locator: a rectified stereo pair in, sub-pixel lamp-centre pairs out.
+"""The spot locator: a stereo pair in, sub-pixel lamp-centre pairs out.
+
+The images are rectified (camera_info D = 0, R = I, P[:, :3] = K), or raw images of a
+calibrated pair (``StereoGeometry.raw_cameras``): then each spot is measured in its raw
+image as before and its centre mapped to the rectified image through that camera's K,
+D, R and P (``vlc_common.core.camera.CameraModel.rectify_points``, as image_geometry)
+before matching, the common centre row, the eccentricity correction and the
+disparity; the stamp comes from the left spot's raw row (the row it was exposed on).
 
 Per image: detect spots (closing joins the stripes, :mod:`.detection`); per spot: a
 centre (:mod:`.centres`); per stereo pair: epipolar matching (:mod:`.matching`),
@@ -29,11 +36,19 @@ FLAG_ECC_CONIC = 1 << 4         # ... with the normal measured from the ellipses
 FLAG_V_FROM_WIDTH = 1 << 5      # chord fit found the centre row from the chord widths
 FLAG_ROLLING_SHUTTER = 1 << 6   # rolling-shutter model of the moving lamp applied
 FLAG_CUT_BY_BORDER = 1 << 7     # a spot of the pair is cut by the top or bottom image edge
+FLAG_RECTIFIED = 1 << 8         # centres measured in raw images, mapped through camera_info
 
 
 @dataclass
 class StereoGeometry:
-    """Rectified stereo pair (from the two CameraInfo messages): pixels and metres."""
+    """Rectified stereo pair (from the two CameraInfo messages): pixels and metres.
+
+    ``fx`` … ``baseline_m`` are the rectified projection's (P). ``raw_cameras`` is None
+    when the images are rectified already (today's rig: D = 0, R = I, P[:, :3] = K);
+    otherwise the images are raw and it holds, per camera (left, right), the tuple
+    ``(K, D, R, P, distortion_model)`` of its camera_info, matrices flat as tuples of
+    floats (hashable and comparable, so a node can tell a changed calibration).
+    """
 
     fx: float = 1040.0
     fy: float = 1040.0
@@ -42,10 +57,21 @@ class StereoGeometry:
     baseline_m: float = 0.12
     width: int = 1280
     height: int = 720
+    raw_cameras: tuple = None
 
     @property
     def K(self):
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def camera_models(self):
+        """(left, right) :class:`vlc_common.core.camera.CameraModel` of the raw cameras,
+        or None when the images are rectified.
+        """
+        if self.raw_cameras is None:
+            return None
+        from vlc_common.core.camera import CameraModel
+        return tuple(CameraModel(self.width, self.height, K, D, R, P, model)
+                     for K, D, R, P, model in self.raw_cameras)
 
 
 @dataclass
@@ -75,6 +101,9 @@ class LocatorConfig:
         brightness gradient across a large spot pulls its centroid toward the image
         centre), 'none' leaves it.
     contour_level: iso-contour level of the paper's ellipse fit, fraction of the peak.
+    trigger_skew_s: the right camera's row r is exposed this long after the left
+        camera's row r (s; 0 for one trigger). With raw images or a skew, a moving
+        lamp's right centre is moved back to the left centre's instant.
     """
 
     method: str = 'chord'
@@ -93,6 +122,7 @@ class LocatorConfig:
     rolling_shutter_model: bool = True
     vignetting: str = 'cos4'
     contour_level: float = 0.5
+    trigger_skew_s: float = 0.0
     detect: DetectConfig = field(default_factory=DetectConfig)
     chord: cm.ChordConfig = field(default_factory=cm.ChordConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
@@ -107,6 +137,8 @@ class LocatorConfig:
         n = np.asarray(self.normal_cam, float)
         if n.shape != (3,) or not np.linalg.norm(n) > 0:
             raise ValueError('normal_cam must be a non-zero 3-vector')
+        if not np.isfinite(self.trigger_skew_s):
+            raise ValueError('trigger_skew_s must be finite')
 
 
 @dataclass
@@ -158,6 +190,8 @@ class _Spot:
     alpha: float
     u: float
     v: float
+    ur: float = float('nan')    # rectified centre (raw images only)
+    vr: float = float('nan')
 
 
 class SpotLocator:
@@ -169,6 +203,11 @@ class SpotLocator:
         n = np.asarray(self.cfg.normal_cam, float)
         self.normal_cam = n / np.linalg.norm(n)
         self._cos4_map = None      # (geometry key, the frame's cos⁴ map), see _cos4
+        # raw images: the cameras' models, and the left optical frame → rectified frame
+        self.models = self.geom.camera_models()
+        self._R_rect = None if self.models is None else self.models[0].R
+        if self._R_rect is not None:
+            self.normal_cam = self._R_rect @ self.normal_cam
 
     def process(self, left, right, speed_mps=0.0):
         """Locate lamp spot pairs in one rectified stereo pair.
@@ -207,8 +246,17 @@ class SpotLocator:
                 found.append(spot)
             spots.append(found)
         sl, sr = spots
-        summaries = [[SpotSummary(s.u, s.v, s.region.row_min, s.region.row_max,
-                                  s.region.area_px) for s in side] for side in spots]
+        if self.models is None:
+            summaries = [[SpotSummary(s.u, s.v, s.region.row_min, s.region.row_max,
+                                      s.region.area_px) for s in side] for side in spots]
+        else:
+            # raw images: match on rectified centres, the row spans moved with them
+            summaries = []
+            for side, model in zip(spots, self.models):
+                _rectify_spots(side, model)
+                summaries.append([SpotSummary(s.ur, s.vr, s.region.row_min + (s.vr - s.v),
+                                              s.region.row_max + (s.vr - s.v),
+                                              s.region.area_px) for s in side])
         matches, um_l, um_r = match_spots(summaries[0], summaries[1], self.cfg.match)
         pairs = []
         for i, j in matches:
@@ -353,29 +401,73 @@ class SpotLocator:
         return cm.circularity(cm.spot_contour(closed, self.cfg.contour_level
                                               * float(closed.max())))
 
+    def _centre(self, spot):
+        """The spot's centre in the rectified image (its raw centre when rectified)."""
+        if self.models is None:
+            return [spot.u, spot.v]
+        return [spot.ur, spot.vr]
+
+    def _right_shift(self, a, b, vel, speed_mps):
+        """Image motion of the right spot from the left centre's instant to its own, px.
+
+        The right centre is exposed on its own raw row, ``trigger_skew_s`` late: Δt =
+        (v_raw_right − v_raw_left)·row_time_s + trigger_skew_s after the left one. A
+        moving lamp's right image is then w·Δt from where the left instant would show it
+        (w its image velocity). None when nothing moves or the two instants coincide (a
+        rectified pair on one trigger).
+        """
+        cfg, g = self.cfg, self.geom
+        if speed_mps <= 0.0 or (self.models is None and cfg.trigger_skew_s == 0.0):
+            return None
+        dt = (b.v - a.v) * cfg.row_time_s + cfg.trigger_skew_s
+        P = ecc.triangulate(self._centre(a), self._centre(b), g.fx, g.fy, g.cx, g.cy,
+                            g.baseline_m)
+        if not (np.isfinite(P).all() and P[2] > 0):
+            return None
+        w = db.image_velocity(P - np.array([g.baseline_m, 0.0, 0.0]), vel, g.fx, g.fy)
+        return w * dt
+
     def _pair(self, a, b, speed_mps):
-        g, cfg = self.geom, self.cfg
+        g, cfg, models = self.geom, self.cfg, self.models
         flags = METHODS.index(cfg.method)
         blur_px = 0.0
+        # lamp velocity relative to the camera, in the (rectified) frame of the centres
+        vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
+        if models is not None:
+            vel = self._R_rect @ vel
+            flags |= FLAG_RECTIFIED
         if cfg.wiener and speed_mps > 0.0:
-            P = ecc.triangulate([a.u, a.v], [b.u, b.v], g.fx, g.fy, g.cx, g.cy, g.baseline_m)
+            P = ecc.triangulate(self._centre(a), self._centre(b), g.fx, g.fy, g.cx, g.cy,
+                                g.baseline_m)
             if np.isfinite(P).all() and P[2] > 0:
-                vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
                 blur_px = float(np.hypot(*db.image_velocity(P, vel, g.fx, g.fy))
                                 * cfg.exposure_s)
                 a2 = self._deblur(a, P, vel)
                 b2 = self._deblur(b, P - np.array([g.baseline_m, 0.0, 0.0]), vel)
                 if a2 is not None and b2 is not None:
                     a, b = a2, b2
+                    if models is not None:
+                        _rectify_spots([a], models[0])
+                        _rectify_spots([b], models[1])
                     flags |= FLAG_WIENER
-        uv_l, uv_r = np.array([a.u, a.v]), np.array([b.u, b.v])
+        shift_r = self._right_shift(a, b, vel, speed_mps)
         sl = np.array([a.est.sigma_u, a.est.sigma_v])
         sr = np.array([b.est.sigma_u, b.est.sigma_v])
-        if cfg.method == 'chord':
-            uv_l, uv_r, sl, sr = _common_centre_row(a, b)
+        if models is None:
+            uv_l, uv_r = np.array([a.u, a.v]), np.array([b.u, b.v])
+            if cfg.method == 'chord':
+                uv_l, uv_r, sl, sr = _common_centre_row(a, b)
+            if shift_r is not None:
+                uv_r = uv_r - shift_r
+        elif cfg.method == 'chord':
+            uv_l, uv_r, sl, sr = _common_centre_row_rectified(
+                a, b, models, np.zeros(2) if shift_r is None else shift_r)
+        else:
+            uv_l, uv_r = np.array([a.ur, a.vr]), np.array([b.ur, b.vr])
+            if shift_r is not None:
+                uv_r = uv_r - shift_r
         row_centre = 0.5 * (uv_l[1] + uv_r[1])
         off_l = off_r = np.zeros(2)
-        vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
         moving = cfg.rolling_shutter_model and speed_mps > 0.0
         if cfg.eccentricity != 'off':
             normal, source = self._normal(a, b, vel if moving else None, uv_l, uv_r)
@@ -405,7 +497,11 @@ class SpotLocator:
         row_min, row_max = a.region.row_min, a.region.row_max
         # The centre is the lamp's projection when its own row was exposed (the rig's
         # truth convention). Dark stripe rows at the tips make the lit rows' mid-point a
-        # poor proxy for that row, so use the measured one.
+        # poor proxy for that row, so use the measured one: in a raw image the row the
+        # left centre lies on in that image (the row that was exposed), not its
+        # rectified row.
+        if models is not None:
+            row_centre = float(models[0].unrectify_points(uv_l)[0, 1])
         t_mid = row_centre * cfg.row_time_s + 0.5 * cfg.exposure_s
         return SpotPair(uv_l, uv_r, sl, sr, d, float(np.hypot(sl[0], sr[0])), row_min,
                         row_max, t_mid, a.alpha, b.alpha, off_l, off_r, blur_px, flags)
@@ -445,8 +541,17 @@ class SpotLocator:
                     Mi = np.array([[1.0, du / c, -du * e / c - b], [0.0, 1.0 / c, -e / c],
                                    [0.0, 0.0, 1.0]])
                     Q = Mi.T @ Q @ Mi
-                n = ecc.pick_normal(ecc.normals_from_conic(Q, self.geom.K), self.normal_cam,
-                                    cfg.conic_normal_max_angle_deg)
+                if self.models is None:
+                    n = ecc.pick_normal(ecc.normals_from_conic(Q, self.geom.K),
+                                        self.normal_cam, cfg.conic_normal_max_angle_deg)
+                else:
+                    # the raw conic, through that camera's own K (its lens distortion
+                    # over one spot is left out), its normals turned into the rectified
+                    # frame
+                    model = self.models[0 if offset == 0.0 else 1]
+                    n = ecc.pick_normal([model.R @ m for m in
+                                         ecc.normals_from_conic(Q, model.K)],
+                                        self.normal_cam, cfg.conic_normal_max_angle_deg)
                 if n is not None:
                     found.append(n)
             if found:
@@ -488,4 +593,57 @@ def _common_centre_row(a, b):
         var_u = float(jac @ info['cov_line'] @ jac) + info['k'] ** 2 * var_v0
         out_uv.append(np.array([u, v0]))
         out_sigma.append(np.array([np.sqrt(var_u), np.sqrt(var_v0)]))
+    return out_uv[0], out_uv[1], out_sigma[0], out_sigma[1]
+
+
+def _rectify_spots(spots, model):
+    """Set each spot's rectified centre (``ur``, ``vr``) from its raw one, in one call."""
+    if not spots:
+        return
+    rect = model.rectify_points(np.array([[s.u, s.v] for s in spots]))
+    for s, (ur, vr) in zip(spots, rect):
+        s.ur, s.vr = float(ur), float(vr)
+
+
+def _common_centre_row_rectified(a, b, models, shift_right):
+    """:func:`_common_centre_row` for raw images of a calibrated pair.
+
+    The two spots lie on one rectified row, not one raw row. Each chord fit's midpoint
+    line u(v) (raw image) is mapped to the rectified image near the spot's centre row
+    (the right one moved back by ``shift_right`` to the left centre's instant); the two
+    rectified centre rows are averaged (inverse variance) and each line is followed to
+    the raw row whose point maps onto that common rectified row (Newton steps on the
+    local slope), so the disparity stays immune to the centre-row error. Returns
+    rectified centres (2,) and their σ (2,) as :func:`_common_centre_row` (the raw σ:
+    the lens scales them by its local Jacobian, a few per cent).
+    """
+    lines, rows = [], []
+    for s, model, shift in ((a, models[0], np.zeros(2)), (b, models[1], shift_right)):
+        info = s.est.info
+        u0, v0r, aa, k, vbar = s.region.u0, s.region.v0, info['a'], info['k'], info['vbar']
+
+        def line(v, u0=u0, v0r=v0r, aa=aa, k=k, vbar=vbar):
+            v = np.atleast_1d(np.asarray(v, float))
+            return np.column_stack([aa + k * (v - v0r - vbar) + u0, v])
+
+        p = model.rectify_points(line([s.v, s.v + 1.0])) - shift
+        slope = p[1] - p[0]                # rectified (du, dv) per raw row along the line
+        lines.append((line, model, shift, s.v, p[0], slope))
+        rows.append((p[0, 1], max(info['var_v'], 1e-12) * slope[1] ** 2))
+    w = np.array([1.0 / r[1] for r in rows])
+    V0 = float(np.dot(w, [r[0] for r in rows]) / w.sum())
+    var_V0 = 1.0 / w.sum()
+    out_uv, out_sigma = [], []
+    for (line, model, shift, v, p0, slope), s in zip(lines, (a, b)):
+        q = p0
+        for _ in range(2):
+            v = v + (V0 - q[1]) / slope[1]
+            q = model.rectify_points(line(v))[0] - shift
+        info = s.est.info
+        d = v - s.region.v0 - info['vbar']
+        jac = np.array([1.0, d])
+        var_u = (float(jac @ info['cov_line'] @ jac)
+                 + info['k'] ** 2 * var_V0 / max(slope[1] ** 2, 1e-12))
+        out_uv.append(np.array([q[0], V0]))
+        out_sigma.append(np.array([np.sqrt(var_u), np.sqrt(var_V0)]))
     return out_uv[0], out_uv[1], out_sigma[0], out_sigma[1]

@@ -42,6 +42,10 @@ class JoinConfig:
     ----------
     match_radius_px : float
         Largest left-image distance between a lamp record and its spot pair, px.
+    rectify_left : callable or None
+        Raw → rectified pixels (N, 2) → (N, 2) of the left camera when its images are
+        raw (the decoder's positions are raw pixels, the spot pairs' rectified ones);
+        None when the images are rectified.
     timeout_s : float
         Longest wait (receive clock) for the other half of a frame, s.
     max_pending : int
@@ -51,6 +55,7 @@ class JoinConfig:
     match_radius_px: float = 12.0
     timeout_s: float = 0.15
     max_pending: int = 10
+    rectify_left: object = None
 
 
 @dataclass
@@ -143,6 +148,8 @@ def join_frame(stamp_ns, spots, lamps, config=None):
     if lamps is None or not obs:
         return obs, 0 if lamps is None else int(lamps.size)
     uids, pos = lamp_uids(lamps)
+    if config.rectify_left is not None and len(pos):
+        pos = np.asarray(config.rectify_left(pos), float).reshape(-1, 2)
     radius = np.maximum(config.match_radius_px, lamp_box_half_sides(lamps))
     spot_uv = np.array([o.uv_left for o in obs])
     unmatched = 0

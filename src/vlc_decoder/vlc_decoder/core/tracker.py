@@ -144,26 +144,44 @@ def _row_overlap(a, b):
     return min(a.row1, b.row1) - max(a.row0, b.row0)
 
 
-def pair_spots(left, right, max_disparity_px):
+def _rectified(spots, rectify):
+    """(u, v, row shift) per spot in the rectified image, or the raw ones."""
+    if rectify is None or not spots:
+        return [(s.u, s.v, 0.0) for s in spots]
+    uv = np.asarray(rectify(np.array([[s.u, s.v] for s in spots], float)), float)
+    return [(u, v, v - s.v) for s, (u, v) in zip(spots, uv.reshape(-1, 2))]
+
+
+def pair_spots(left, right, max_disparity_px, rectify=None):
     """Greedy stereo pairing: same rows, right spot left of the left one.
+
+    ``rectify``: None for rectified images, else (left, right) raw → rectified pixel
+    maps ((N, 2) → (N, 2)) of raw images: the rows and the disparity are compared in
+    the rectified images (a lamp's two raw rows differ with a rotated right camera or
+    other principal points), the row spans moved with the centres.
 
     Returns a list of (left_spot or None, right_spot or None).
     """
+    rl = _rectified(left, None if rectify is None else rectify[0])
+    rr = _rectified(right, None if rectify is None else rectify[1])
     candidates = []
     for i, a in enumerate(left):
+        ua, va, sa = rl[i]
         for j, b in enumerate(right):
-            overlap = _row_overlap(a, b)
+            ub, vb, sb = rr[j]
+            overlap = (min(a.row1 + sa, b.row1 + sb) - max(a.row0 + sa, b.row0 + sb)
+                       if rectify is not None else _row_overlap(a, b))
             if overlap < 0.5 * min(a.row1 - a.row0, b.row1 - b.row0):
                 continue
             cut = a.cut or b.cut
             # a spot cut by the border has a biased centre: only its rows pair it
-            if not cut and abs(a.v - b.v) > PAIR_ROW_TOLERANCE_PX + 0.1 * (a.row1 - a.row0):
+            if not cut and abs(va - vb) > PAIR_ROW_TOLERANCE_PX + 0.1 * (a.row1 - a.row0):
                 continue
-            disparity = a.u - b.u
+            disparity = ua - ub
             if not -2.0 - (a.width_px + b.width_px if cut else 0.0) <= disparity \
                     <= max_disparity_px:
                 continue
-            candidates.append((abs(a.v - b.v) + 0.01 * disparity, i, j))
+            candidates.append((abs(va - vb) + 0.01 * disparity, i, j))
     candidates.sort()
     used_l, used_r, pairs = set(), set(), []
     for _, i, j in candidates:
@@ -220,6 +238,8 @@ class LampTracker:
         self.cfg = cfg
         self.lamp_map = lamp_map
         self.max_disparity_px = max_disparity_px
+        # raw images: (left, right) raw → rectified pixel maps for the stereo pairing
+        self.rectify = None
         self.tracks = []
         self._ids = itertools.count(1)
         self.anomalies = {}          # uid -> count of tracks that decoded it
@@ -264,7 +284,7 @@ class LampTracker:
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             raise ValueError(f'stamp {stamp_ns} ns is not after {self.last_stamp_ns} ns')
         self.last_stamp_ns = stamp_ns
-        observations = pair_spots(left, right, self.max_disparity_px)
+        observations = pair_spots(left, right, self.max_disparity_px, self.rectify)
         matches = self._associate(stamp_ns, observations)
         records = []
         for obs_index, (spot_l, spot_r) in enumerate(observations):
