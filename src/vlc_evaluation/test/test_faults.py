@@ -55,6 +55,23 @@ def test_a_pose_is_scored_against_the_segment_it_was_made_in():
     assert np.all(np.isnan(truth[2]))          # no truth at that stamp: not scored
 
 
+def test_a_pose_stamped_just_past_its_time_bases_last_truth_keeps_its_segment():
+    """The truth comes with each frame, the poses also between frames: a pose stamped
+    20 ms after the last truth before a 2 s step back, recorded before the step, belongs
+    to the old time base (not to the new one, where its stamp lies 2 s in the future).
+    """
+    log = np.arange(0.0, 4.0, 1.0 / 30.0)
+    stamp = np.where(log < 2.0, log, log - 2.0)
+    last = float(stamp[log < 2.0][-1])
+    run = make_run(stamp, log, pose_stamp_s=[last + 0.02, last + 0.2],
+                   pose_log_s=[last + 0.021, last + 0.021])
+    truth = faults.match_truth(run)
+    assert truth[0, 0] == pytest.approx((last + 0.02) * 20.0)
+    # 0.2 s past its base's truth is too far to extrapolate, and the new base's stamps
+    # end before it: not scored
+    assert np.all(np.isnan(truth[1]))
+
+
 def test_back_to_tracking_counts_every_spell_the_fault_caused():
     states = [(0.1, 'waiting_for_uid'), (0.3, 'tracking'), (6.2, 'coasting'),
               (7.0, 'degraded'), (8.5, 'tracking'), (12.0, 'coasting'), (12.5, 'tracking')]

@@ -59,7 +59,9 @@ class Scenario:
     ``extra_nodes``: ``[[package, executable, [parameter files in its share/config]]]``
     started beside the processing nodes (the companion methods, :mod:`.companions`),
     with ``node_params[executable]``; ``extra_subscriptions`` (``{topic: count}``) are
-    theirs, awaited before simulated time starts; ``extra_topics`` are recorded too.
+    theirs, awaited before simulated time starts; ``extra_topics`` are recorded too;
+    ``extra_publishers`` (``{topic: count}``) theirs on the graph's own sensor topics (the
+    fault injector), not taken for another graph sharing the domain.
     ``kind`` (``companions``, ``outage``, ``forged``; '' = the paper's protocols) selects
     the scoring, ``kind_params`` its geometry (:mod:`.companions`). ``lean_recording``
     leaves the 400 Hz IMU topics out of the bag (latency replays).
@@ -81,6 +83,7 @@ class Scenario:
     extra_nodes: list = field(default_factory=list)
     extra_subscriptions: dict = field(default_factory=dict)
     extra_topics: list = field(default_factory=list)
+    extra_publishers: dict = field(default_factory=dict)
     kind: str = ''
     kind_params: dict = field(default_factory=dict)
     lean_recording: bool = False
