@@ -154,6 +154,9 @@ def main(argv=None):
                         help='faults: only these rows (names in faults.FAULTS)')
     parser.add_argument('--fault-speed', type=float, default=faults.FAULT_SPEED_KMH,
                         help='faults: train speed, km/h')
+    parser.add_argument('--faults-docs', nargs='+', default=[],
+                        help='faults: also write the fault table between the faults markers '
+                             'of these Markdown files')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -252,6 +255,9 @@ def main(argv=None):
             print(f'{path}: companions section rewritten')
     if fault_results:
         text += faults.append_to_report(out, fault_results, args.fault_speed)
+        for path in args.faults_docs:
+            faults.update_docs(path, fault_results, command, args.fault_speed)
+            print(f'{path}: faults section rewritten')
     print(text)
     print(f'report: {out / "report.md"}, figures: {out / "report.json"}')
     wall = time.monotonic() - started

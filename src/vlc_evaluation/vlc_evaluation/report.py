@@ -578,14 +578,6 @@ def summary_markdown(figures, results_link):
         text += (f'\nEnd-to-end latency, spot exposure to `train/pose`, sensor bags replayed '
                  f'at real time: median {replay["median_ms"]:.1f} ms, p99 '
                  f'{replay["p99_ms"]:.1f} ms (paper: 48–51 ms per fix).\n')
-    fault = figures.get('faults')
-    if fault:
-        rows = fault.get('rows', {})
-        passed = sum(1 for r in rows.values() if r.get('passed'))
-        text += (f'\nFaults, the whole graph at {fault.get("speed_kmh", 0):.0f} km/h, one per '
-                 f'run ({passed} of {len(rows)} rows meet the acceptance: no confidently wrong '
-                 f'pose, ≥ 99.7 % within 3σ, back to tracking within 3 lamps, every node exit '
-                 f'0):\n\n{fault["table"]}')
     return text + (f'\nEvery table (per speed and test point, covariance bound, heading, lamp '
                    f'identification, latency, ablations, the other methods, lamp outage, '
                    f'forged lamp, faults) and figure: [{results_link}]({results_link}).\n')
