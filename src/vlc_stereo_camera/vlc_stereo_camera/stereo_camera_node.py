@@ -49,7 +49,18 @@ frame is rendered and the pacing and ``/clock`` run on unchanged.
 
 Published frame stamp = epoch + t0 + Σ_{at_s ≤ t0} jump_s. Diagnostics then also report
 ``frames_dropped``.
+
+Rig profile (shared ``rig_profile``; :mod:`.core.installation`): ``ideal`` (default) is
+the rig above. ``realistic`` / ``harsh`` draw an installation from the profile and
+``seed``: the images are rendered RAW through the true lenses, from the true mount, of
+the true lamps (positions as built, tilted normals, diameters, brightness, dead lamps),
+with the row time, fixed pattern, corner PSF and wall reflections of the profile; but
+``camera_info`` carries the BELIEF (the drawn calibration: K, D, R, P per camera), and
+``ground_truth/spots`` the raw truth. With ``installation_dir`` the node writes
+``belief/{left,right,vehicle,lamp_map}.yaml`` (for the receivers: ``vehicle_path``,
+``lamp_map_path``) and ``truth/`` (the evaluation's only) there at start-up.
 """
+import dataclasses
 from dataclasses import dataclass
 import queue
 import sys
@@ -75,6 +86,7 @@ from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.process import keep_large_buffers, run_node, spin_until_finished
 from vlc_stereo_camera import conversions
+from vlc_stereo_camera.core.installation import NominalCamera, draw_installation
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
 from vlc_stereo_camera.rig_params import declare_scenario_parameters
@@ -189,6 +201,12 @@ class StereoCameraNodeConfig:
     clock_tail_s: float
     wait_for_subscribers: int
 
+    def nominal_camera(self):
+        """The stereo camera as designed (an installation's nominal)."""
+        return NominalCamera(width=self.image_width, height=self.image_height, fx=self.fx,
+                             fy=self.fy, cx=self.cx, cy=self.cy, baseline_m=self.baseline_m,
+                             row_time_s=self.row_time_s)
+
     def renderer_config(self, epoch_s, vehicle):
         """The RendererConfig these parameters describe on ``vehicle`` (a VehicleMount;
         ValueError if inconsistent).
@@ -226,13 +244,29 @@ class StereoCameraNode(Node):
             self.declare_parameter(name, default, descriptor)
         self.config = cfg = StereoCameraNodeConfig(
             **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
-        renderer_config = cfg.renderer_config(self.scenario.epoch_s, self.scenario.vehicle())
         trajectory = self.scenario.trajectory()
         lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
                                                       self.scenario.alignment))
+        profile = self.scenario.profile()
+        if profile.ideal:
+            renderer_config = cfg.renderer_config(self.scenario.epoch_s,
+                                                  self.scenario.nominal_vehicle())
+            self.installation = None
+        else:
+            self.installation = inst = draw_installation(
+                profile, self.scenario.seed, self.scenario.nominal_vehicle(), lamp_map,
+                cfg.nominal_camera())
+            renderer_config = dataclasses.replace(
+                cfg.renderer_config(self.scenario.epoch_s, inst.vehicle_truth),
+                **inst.renderer_fields())
+            lamp_map = inst.lamp_map_truth
         self.renderer = StereoRenderer(renderer_config, lamp_map, trajectory,
                                        seed=self.scenario.seed)
-        self._infos = self.renderer.camera_info_dicts()
+        if self.installation is None:
+            self._infos = self.renderer.camera_info_dicts()
+        else:
+            self._infos = self.installation.calibration.camera_info_dicts()
+            self._report_installation()
         self._readout_s = ((cfg.image_height - 1) * cfg.row_time_s + cfg.exposure_s)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -275,6 +309,22 @@ class StereoCameraNode(Node):
             f'motion {self.scenario.motion_profile}, seed {self.scenario.seed}')
         if self._faults.camera_faults:
             self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
+
+    def _report_installation(self):
+        """Log the drawn installation (and write it into ``installation_dir``)."""
+        inst = self.installation
+        truth = inst.truth_dict()
+        where = ''
+        if self.scenario.installation_dir:
+            inst.write(self.scenario.installation_dir)
+            where = f'; belief/ and truth/ written to {self.scenario.installation_dir}'
+        self.get_logger().info(
+            f'rig_profile {inst.profile.name}, seed {inst.seed}: raw images of the drawn '
+            f'installation, camera_info = its calibration (stated RMS '
+            f'{inst.calibration.rms_px:g} px), trigger skew '
+            f'{inst.optics.trigger_skew_s * 1e6:.1f} us, IMU clock offset '
+            f'{inst.imu_clock_offset_s * 1e3:+.3f} ms, dead lamps {truth.get("dead_lamps", [])}, '
+            f'gross survey errors {truth.get("gross_survey_errors", [])}{where}')
 
     # ------------------------------------------------------------ worker threads
     def _render_loop(self):
