@@ -173,11 +173,34 @@ def bag_end_ns(bag, topic='/ground_truth/pose'):
     return last
 
 
+def write_installation(scenario, out_dir):
+    """The receivers' parameters for a drawn rig profile ({} for ``ideal``).
+
+    Draws the scenario's installation (the draw the rig nodes make from ``rig_profile``
+    and ``seed`` on the shipped vehicle and lamp map) and writes it beside the bag,
+    ``<out_dir>/<name>.installation/{belief,truth}/``: ``truth/truth.yaml`` records the
+    profile, the seed and every drawn value for the evaluation. Returns
+    ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``.
+    """
+    if scenario.rig_profile == 'ideal':
+        return {}
+    from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+    from vlc_common.core.vehicle import load_vehicle
+    from vlc_stereo_camera.core.installation import draw_installation
+    inst = draw_installation(scenario.rig_profile, scenario.seed, load_vehicle(''),
+                             LampMap.load(resolve_lamp_map_path('')))
+    paths = inst.write(pathlib.Path(out_dir) / f'{scenario.name}.installation')
+    return {'vehicle_path': paths['belief/vehicle.yaml'],
+            'lamp_map_path': paths['belief/lamp_map.yaml']}
+
+
 def _start_rig(graph, scenario, camera_subscribers):
     rig = {'seed': scenario.seed, 'motion_profile': scenario.motion_profile,
            'start_chainage_m': float(scenario.start_chainage_m),
            'speed_kmh': float(scenario.speed_kmh),
            'realtime_factor': float(scenario.realtime_factor)}
+    if scenario.rig_profile != 'ideal':
+        rig['rig_profile'] = scenario.rig_profile
     rig_files = [graph.config_file('vlc_stereo_camera', 'rig.yaml')]
     # The IMU follows the camera's /clock (its default), which runs IMU_TAIL_S past the
     # last frame.
@@ -231,11 +254,12 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                     **scenario.node_params.get('bag_recorder', {})),
                     [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
+        belief = {} if replay else write_installation(scenario, out_dir)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
-            graph.start(package, exe, scenario.node_params.get(exe, {}),
+            graph.start(package, exe, dict(belief, **scenario.node_params.get(exe, {})),
                         [graph.config_file(package, f'{exe}.yaml')])
         for package, exe, files in scenario.extra_nodes:
-            graph.start(package, exe, scenario.node_params.get(exe, {}),
+            graph.start(package, exe, dict(belief, **scenario.node_params.get(exe, {})),
                         [graph.config_file(package, name) for name in files])
         required = required_subscriptions(recorded_topics, scenario.run_processing)
         for topic, count in scenario.extra_subscriptions.items():

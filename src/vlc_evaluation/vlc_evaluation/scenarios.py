@@ -62,7 +62,10 @@ class Scenario:
     theirs, awaited before simulated time starts; ``extra_topics`` are recorded too.
     ``kind`` (``companions``, ``outage``, ``forged``; '' = the paper's protocols) selects
     the scoring, ``kind_params`` its geometry (:mod:`.companions`). ``lean_recording``
-    leaves the 400 Hz IMU topics out of the bag (latency replays).
+    leaves the 400 Hz IMU topics out of the bag (latency replays). ``rig_profile``
+    (``ideal``, ``realistic``, ``harsh``): the rig's profile; a drawn one's installation
+    (belief and truth, profile, seed, every drawn value) is written beside the bag in
+    ``<name>.installation/`` and the processing nodes get its belief files.
     """
 
     name: str
@@ -84,6 +87,7 @@ class Scenario:
     kind: str = ''
     kind_params: dict = field(default_factory=dict)
     lean_recording: bool = False
+    rig_profile: str = 'ideal'
 
     @property
     def is_replay(self):
