@@ -248,13 +248,17 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                           for p in graph.procs.values())
 
     try:
-        graph.start(*RECORDER, dict({'output': str(bag), 'topics': list(recorded_topics),
-                                     'discovery_interval_s': RECORDER_SCAN_S,
-                                     'flush_interval_s': RECORDER_FLUSH_S},
-                                    **scenario.node_params.get('bag_recorder', {})),
+        belief = {} if replay else write_installation(scenario, out_dir)
+        recorder = {'output': str(bag), 'topics': list(recorded_topics),
+                    'discovery_interval_s': RECORDER_SCAN_S,
+                    'flush_interval_s': RECORDER_FLUSH_S}
+        if belief:
+            recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
+                                    f'seed={scenario.seed}',
+                                    f'installation={out_dir / f"{scenario.name}.installation"}']
+        graph.start(*RECORDER, dict(recorder, **scenario.node_params.get('bag_recorder', {})),
                     [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
-        belief = {} if replay else write_installation(scenario, out_dir)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
             graph.start(package, exe, dict(belief, **scenario.node_params.get(exe, {})),
                         [graph.config_file(package, f'{exe}.yaml')])
