@@ -20,3 +20,37 @@ def test_a_drawn_profile_records_profile_seed_and_every_drawn_value(tmp_path):
     assert {'optics', 'vehicle_truth', 'vehicle_belief', 'lamps', 'calibration_error',
             'imu_clock_offset_s'} <= set(truth)
     assert (folder / 'belief' / 'left.yaml').exists()
+
+
+def test_calibrate_installation_replaces_the_belief_by_a_checkerboard_calibration(
+        tmp_path, capsys):
+    from vlc_common.core.calibration import load_ros_stereo
+    from vlc_evaluation.installation_calibration import main
+    from vlc_stereo_camera import make_installation
+    assert make_installation.main(['--profile', 'realistic', '--seed', '7',
+                                   '--out', str(tmp_path)]) == 0
+    drawn = load_ros_stereo(tmp_path / 'belief' / 'left.yaml', tmp_path / 'belief' / 'right.yaml')
+    assert drawn.rms_px == 0.15
+    assert main([str(tmp_path), '--pairs', '10']) == 0      # 16 by default; 10 for speed
+    assert 'profile realistic, seed 7' in capsys.readouterr().out
+    found = load_ros_stereo(tmp_path / 'belief' / 'left.yaml', tmp_path / 'belief' / 'right.yaml')
+    report = yaml.safe_load((tmp_path / 'truth' / 'calibration.yaml').read_text())
+    assert found.pairs == report['pairs_used'] >= 5
+    assert found.rms_px == report['stereo_rms_px'] < 0.1
+    # the calibration's errors against the truth are those of a good calibration
+    assert max(abs(v) for cam in report['focal_error_percent'] for v in cam) < 0.1
+    assert max(abs(v) for cam in report['principal_point_error_px'] for v in cam) < 1.0
+    assert max(report['max_edge_displacement_error_px']) < 1.0
+    assert report['rotation_error_deg'] < 0.05 and abs(report['baseline_error_mm']) < 0.5
+    assert not (found.left.K == drawn.left.K).all()
+
+
+def test_calibrate_installation_exits_2_on_an_ideal_or_missing_installation(tmp_path, capsys):
+    from vlc_evaluation.installation_calibration import main
+    from vlc_stereo_camera import make_installation
+    assert main([str(tmp_path / 'none')]) == 2
+    assert 'truth.yaml: (file): cannot read' in capsys.readouterr().err
+    assert make_installation.main(['--profile', 'ideal', '--out', str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert main([str(tmp_path)]) == 2
+    assert 'truth.yaml: optics: missing or malformed' in capsys.readouterr().err

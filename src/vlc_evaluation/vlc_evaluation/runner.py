@@ -181,6 +181,8 @@ def write_installation(scenario, out_dir):
     ``<out_dir>/<name>.installation/{belief,truth}/``: ``truth/truth.yaml`` records the
     profile, the seed and every drawn value for the evaluation. Returns
     ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``.
+    With ``scenario.calibration`` ``checkerboard`` the belief calibration is replaced by
+    an actual checkerboard calibration of the true lenses (``calibrate_installation``).
     """
     if scenario.rig_profile == 'ideal':
         return {}
@@ -189,12 +191,19 @@ def write_installation(scenario, out_dir):
     from vlc_stereo_camera.core.installation import draw_installation
     inst = draw_installation(scenario.rig_profile, scenario.seed, load_vehicle(''),
                              LampMap.load(resolve_lamp_map_path('')))
-    paths = inst.write(pathlib.Path(out_dir) / f'{scenario.name}.installation')
+    folder = pathlib.Path(out_dir) / f'{scenario.name}.installation'
+    paths = inst.write(folder)
+    if scenario.calibration == 'checkerboard':
+        from vlc_evaluation.installation_calibration import calibrate_installation
+        calibrate_installation(folder)
+    elif scenario.calibration != 'drawn':
+        raise ValueError(f'scenario {scenario.name}: calibration {scenario.calibration!r} is '
+                         'not drawn or checkerboard')
     return {'vehicle_path': paths['belief/vehicle.yaml'],
             'lamp_map_path': paths['belief/lamp_map.yaml']}
 
 
-def _start_rig(graph, scenario, camera_subscribers):
+def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
     rig = {'seed': scenario.seed, 'motion_profile': scenario.motion_profile,
            'start_chainage_m': float(scenario.start_chainage_m),
            'speed_kmh': float(scenario.speed_kmh),
@@ -214,7 +223,8 @@ def _start_rig(graph, scenario, camera_subscribers):
     graph.start('vlc_stereo_camera', 'stereo_camera_node',
                 dict(rig, duration_s=float(scenario.duration_s), clock_tail_s=IMU_TAIL_S,
                      wait_for_subscribers=camera_subscribers,
-                     **scenario.node_params.get('stereo_camera_node', {})),
+                     **{**(camera_params or {}),
+                        **scenario.node_params.get('stereo_camera_node', {})}),
                 rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])
 
 
@@ -277,8 +287,13 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                         if t not in ('/clock', '/ground_truth/pose', '/ground_truth/spots')}
         else:
             # decoder, spot locator, the probe's gate (, the recorder)
+            camera = {}
+            if belief and scenario.calibration == 'checkerboard':
+                belief_dir = pathlib.Path(belief['vehicle_path']).parent
+                camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
+                                               str(belief_dir / 'right.yaml')]
             _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
-                       + int('/stereo/left/image_raw' in recorded_topics))
+                       + int('/stereo/left/image_raw' in recorded_topics), camera)
         mark('started')
         missing = probe.wait_for_subscribers(required, READY_TIMEOUT_S, abort=died)
         mark('ready')

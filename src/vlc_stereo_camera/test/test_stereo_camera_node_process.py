@@ -59,3 +59,25 @@ def test_a_drawn_profile_writes_the_installation_the_command_writes(launch, tmp_
                  'belief/lamp_map.yaml', 'truth/vehicle.yaml', 'truth/lamp_map.yaml'):
         assert ((tmp_path / 'node' / name).read_text()
                 == (tmp_path / 'core' / name).read_text()), name
+
+
+def test_a_calibration_for_another_image_size_stops_the_node(launch, tmp_path):
+    from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
+    from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig
+    pair = StereoCameraModel.from_rig(StereoRig(intrinsics=CameraIntrinsics(
+        640, 480, 520.0, 520.0, 319.5, 239.5)))
+    left, right = tmp_path / 'left.yaml', tmp_path / 'right.yaml'
+    save_ros_stereo(StereoCalibration(pair.left, pair.right), left, right)
+    proc = launch('vlc_stereo_camera', 'stereo_camera_node',
+                  params={'calibration_paths': [str(left), str(right)]})
+    code = proc.wait(timeout=60)
+    log = launch.output(proc)
+    assert code == 2, log
+    assert (f'{left}, {right}: image size: calibrated for 640x480 px, the images are '
+            '1280x720 px') in log
+    right.write_text('image_width: 1280\nimage_height: [\n')
+    proc = launch('vlc_stereo_camera', 'stereo_camera_node',
+                  params={'calibration_paths': [str(left), str(right)]})
+    assert proc.wait(timeout=60) == 2
+    log = launch.output(proc)
+    assert 'invalid configuration' in log and f'{right}' in log, log

@@ -59,6 +59,12 @@ with the row time, fixed pattern, corner PSF and wall reflections of the profile
 ``ground_truth/spots`` the raw truth. With ``installation_dir`` the node writes
 ``belief/{left,right,vehicle,lamp_map}.yaml`` (for the receivers: ``vehicle_path``,
 ``lamp_map_path``) and ``truth/`` (the evaluation's only) there at start-up.
+
+``calibration_paths`` [left.yaml, right.yaml] (camera_info_manager files, or one OpenCV
+FileStorage file): publish that calibration as camera_info instead, as a camera driver
+publishes its camera_info_url (e.g. a checkerboard calibration of the drawn lenses made by
+``calibrate_installation``). A file that does not parse or was calibrated for another
+image size stops the node with the file and field named, exit code 2.
 """
 import dataclasses
 from dataclasses import dataclass
@@ -76,11 +82,13 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+from vlc_common.core.calibration import load_stereo_calibration
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
@@ -104,6 +112,11 @@ NODE_PARAMETERS = (
     ('lamp_map_path', '', _desc("Lamp map YAML; '' = the installed map of the alignment "
                                 '(share/vlc_common/config/lamp_map.yaml for straight, '
                                 'lamp_map_<alignment>.yaml otherwise).', ptype=_STR)),
+    ('calibration_paths', [], _desc('camera_info published: [] = the rig\'s own (the ideal '
+                                    'pair, or a drawn profile\'s belief calibration); '
+                                    '[left.yaml, right.yaml] camera_info_manager files or one '
+                                    'OpenCV FileStorage file.',
+                                    ptype=ParameterType.PARAMETER_STRING_ARRAY)),
     ('image_width', 1280, _desc('Image width, px.', 64, 4096, integer=True)),
     ('image_height', 720, _desc('Image height (rows), px.', 48, 4096, integer=True)),
     ('fx', 1040.0, _desc('Focal length, px (3.9 mm / 3.75 um).', 50.0, 10000.0)),
@@ -167,6 +180,7 @@ class StereoCameraNodeConfig:
     left_frame_id: str
     right_frame_id: str
     lamp_map_path: str
+    calibration_paths: tuple
     image_width: int
     image_height: int
     fx: float
@@ -240,10 +254,14 @@ class StereoCameraNode(Node):
     def __init__(self, **kwargs):
         super().__init__('stereo_camera_node', **kwargs)
         self.scenario = declare_scenario_parameters(self)
+        values = {}
         for name, default, descriptor in NODE_PARAMETERS:
-            self.declare_parameter(name, default, descriptor)
-        self.config = cfg = StereoCameraNodeConfig(
-            **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
+            # rclpy infers no type from []: unset means empty
+            values[name] = self.declare_parameter(
+                name, Parameter.Type.STRING_ARRAY if default == [] else default,
+                descriptor).value
+        values['calibration_paths'] = tuple(values['calibration_paths'] or ())
+        self.config = cfg = StereoCameraNodeConfig(**values)
         trajectory = self.scenario.trajectory()
         lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
                                                       self.scenario.alignment))
@@ -267,6 +285,13 @@ class StereoCameraNode(Node):
         else:
             self._infos = self.installation.calibration.camera_info_dicts()
             self._report_installation()
+        if cfg.calibration_paths:
+            paths = list(cfg.calibration_paths)
+            calibration = load_stereo_calibration(paths if len(paths) > 1 else paths[0])
+            calibration.check_image_size(cfg.image_width, cfg.image_height)
+            self._infos = calibration.camera_info_dicts()
+            self.get_logger().info(f'camera_info from {", ".join(paths)} (stated RMS '
+                                   f'{calibration.rms_px:g} px)')
         self._readout_s = ((cfg.image_height - 1) * cfg.row_time_s + cfg.exposure_s)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
