@@ -54,3 +54,23 @@ def test_calibrate_installation_exits_2_on_an_ideal_or_missing_installation(tmp_
     capsys.readouterr()
     assert main([str(tmp_path)]) == 2
     assert 'truth.yaml: optics: missing or malformed' in capsys.readouterr().err
+
+
+def test_receivers_get_the_survey_instead_of_the_rigs_map_but_keep_a_deliberate_one(tmp_path):
+    from vlc_common.core.lamp_map import default_lamp_map_path
+    from vlc_evaluation.runner import receiver_params
+    curved = default_lamp_map_path('curved_demo')
+    scenario = Scenario(name='c', seed=2, rig_profile='realistic', node_params={
+        'stereo_camera_node': {'alignment': 'curved_demo', 'lamp_map_path': curved},
+        'train_localizer_node': {'lamp_map_path': curved, 'alignment': 'curved_demo'},
+        'vlc_decoder_node': {'lamp_map_path': str(tmp_path / 'forged.yaml')}})
+    belief = write_installation(scenario, tmp_path)
+    truth = yaml.safe_load((tmp_path / 'c.installation' / 'truth' / 'truth.yaml').read_text())
+    assert truth['lamps'][0]['uid'] >> 12 == 2               # drawn on the curved line
+    localizer = receiver_params(belief, scenario, 'train_localizer_node')
+    assert localizer['lamp_map_path'] == belief['lamp_map_path']
+    assert localizer['alignment'] == 'curved_demo'
+    assert receiver_params(belief, scenario, 'vlc_decoder_node')['lamp_map_path'] == str(
+        tmp_path / 'forged.yaml')
+    assert receiver_params(belief, scenario, 'spot_locator_node') == belief
+    assert receiver_params({}, scenario, 'spot_locator_node') == {}

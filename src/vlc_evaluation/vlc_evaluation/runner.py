@@ -186,11 +186,13 @@ def write_installation(scenario, out_dir):
     """
     if scenario.rig_profile == 'ideal':
         return {}
-    from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
+    from vlc_common.core.lamp_map import LampMap
     from vlc_common.core.vehicle import load_vehicle
     from vlc_stereo_camera.core.installation import draw_installation
-    inst = draw_installation(scenario.rig_profile, scenario.seed, load_vehicle(''),
-                             LampMap.load(resolve_lamp_map_path('')))
+    camera = scenario.node_params.get('stereo_camera_node', {})
+    inst = draw_installation(scenario.rig_profile, scenario.seed,
+                             load_vehicle(camera.get('vehicle_path', '')),
+                             LampMap.load(_rig_lamp_map_path(scenario)))
     folder = pathlib.Path(out_dir) / f'{scenario.name}.installation'
     paths = inst.write(folder)
     if scenario.calibration == 'checkerboard':
@@ -201,6 +203,29 @@ def write_installation(scenario, out_dir):
                          'not drawn or checkerboard')
     return {'vehicle_path': paths['belief/vehicle.yaml'],
             'lamp_map_path': paths['belief/lamp_map.yaml']}
+
+
+def _rig_lamp_map_path(scenario):
+    """The lamp map the scenario's camera node renders (resolved path)."""
+    from vlc_common.core.lamp_map import resolve_lamp_map_path
+    camera = scenario.node_params.get('stereo_camera_node', {})
+    return resolve_lamp_map_path(camera.get('lamp_map_path', ''),
+                                 camera.get('alignment', 'straight'))
+
+
+def receiver_params(belief, scenario, exe):
+    """A processing node's parameters: the belief files under the scenario's own; a
+    ``lamp_map_path`` that names the rig's own (true) map is replaced by the survey (a
+    deliberately different receiver map, as in the forged-lamp and outage scenarios, is
+    kept as it is).
+    """
+    own = scenario.node_params.get(exe, {})
+    params = dict(belief, **own)
+    if belief and own.get('lamp_map_path') and (
+            os.path.realpath(os.path.expanduser(own['lamp_map_path']))
+            == os.path.realpath(_rig_lamp_map_path(scenario))):
+        params['lamp_map_path'] = belief['lamp_map_path']
+    return params
 
 
 def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
@@ -270,10 +295,10 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                     [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
-            graph.start(package, exe, dict(belief, **scenario.node_params.get(exe, {})),
+            graph.start(package, exe, receiver_params(belief, scenario, exe),
                         [graph.config_file(package, f'{exe}.yaml')])
         for package, exe, files in scenario.extra_nodes:
-            graph.start(package, exe, dict(belief, **scenario.node_params.get(exe, {})),
+            graph.start(package, exe, receiver_params(belief, scenario, exe),
                         [graph.config_file(package, name) for name in files])
         required = required_subscriptions(recorded_topics, scenario.run_processing)
         for topic, count in scenario.extra_subscriptions.items():
