@@ -292,7 +292,8 @@ class StereoCameraNode(Node):
             self._infos = calibration.camera_info_dicts()
             self.get_logger().info(f'camera_info from {", ".join(paths)} (stated RMS '
                                    f'{calibration.rms_px:g} px)')
-        self._readout_s = ((cfg.image_height - 1) * cfg.row_time_s + cfg.exposure_s)
+        self._readout_s = ((cfg.image_height - 1) * renderer_config.row_time_s
+                           + cfg.exposure_s)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

@@ -107,13 +107,28 @@ class RigProfile:
 
     @property
     def ideal(self):
+        """True for a profile that draws nothing (the nominal rig)."""
         return not self.sections
 
-    def __getattr__(self, section):
-        sections = self.__dict__.get('sections', {})
-        if section in _SCHEMA:
-            return sections.get(section, {})
-        raise AttributeError(section)
+    @property
+    def lens(self):
+        return self.sections.get('lens', {})
+
+    @property
+    def calibration(self):
+        return self.sections.get('calibration', {})
+
+    @property
+    def mount(self):
+        return self.sections.get('mount', {})
+
+    @property
+    def lamps(self):
+        return self.sections.get('lamps', {})
+
+    @property
+    def sensor(self):
+        return self.sections.get('sensor', {})
 
 
 def _check_value(source, where, kind, value):
