@@ -13,9 +13,10 @@ this module draws (ROS-free, deterministic per seed):
 * the **line truth**: per lamp its true normal (tilted), diameter and brightness, and
   which lamps are dead; the true positions are the nominal map's (the as-built line);
 * the **belief** handed to the receivers: a stereo calibration (the truth perturbed by
-  the errors a checkerboard calibration of the stated reprojection RMS leaves — not an
-  actual calibration from rendered boards, which takes minutes), the vehicle mount as
-  measured (truth + measurement error) and the surveyed lamp map (true positions +
+  the errors a field checkerboard calibration of the stated reprojection RMS leaves, in
+  milliseconds per draw; an actual calibration from boards rendered through the true
+  lenses, ~10 s, is the tooling command ``calibrate_installation``), the vehicle mount
+  as measured (truth + measurement error) and the surveyed lamp map (true positions +
   survey error per axis, a few gross errors, the survey 1σ in ``position_sigma_m``).
 
 :func:`draw_installation` returns an :class:`Installation`; :meth:`Installation.write`
