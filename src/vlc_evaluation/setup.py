@@ -40,6 +40,7 @@ setup(
             'sample_bag = vlc_evaluation.sample_bag:main',
             'sbs_bag = vlc_evaluation.sbs_bag:main',
             'fault_injector_node = vlc_evaluation.fault_injector_node:main',
+            'calibrate_installation = vlc_evaluation.installation_calibration:main',
         ],
     },
 )

@@ -25,6 +25,7 @@ setup(
             'stereo_camera_node = vlc_stereo_camera.stereo_camera_node:main',
             'adis16488_node = vlc_stereo_camera.adis16488_node:main',
             'photodiode_node = vlc_stereo_camera.photodiode_node:main',
+            'make_installation = vlc_stereo_camera.make_installation:main',
         ],
     },
 )

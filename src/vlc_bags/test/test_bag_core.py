@@ -399,3 +399,19 @@ def test_time_window_and_schedule():
     fast = PlaybackSchedule(0.0)
     fast.restart(0, 0.0)
     assert fast.due_s(5) is None
+
+
+def test_recorder_metadata_entries_go_to_custom_data(tmp_path):
+    config = RecorderConfig(metadata=('rig_profile=realistic', 'seed = 7',
+                                      'installation=/runs/a.installation'))
+    session = RecordingSession(config, tmp_path / 'bag')
+    session.add_topic('/chatter', 'std_msgs/msg/String', [])
+    session.record('/chatter', _string(1), 100)
+    session.close()
+    meta = yaml.safe_load((tmp_path / 'bag' / 'metadata.yaml').read_text())
+    custom = meta['rosbag2_bagfile_information']['custom_data']
+    assert custom['rig_profile'] == 'realistic' and custom['seed'] == '7'
+    assert custom['installation'] == '/runs/a.installation'
+    assert custom['recorder'] == 'vlc_bags/bag_recorder'
+    with pytest.raises(ValueError, match="metadata entry 'seed' is not 'key=value'"):
+        RecorderConfig(metadata=('seed',))

@@ -114,6 +114,9 @@ class BagRecorderNode(Node):
                                   'Take the received messages in batches this often (steady '
                                   'clock); 0 = a callback per message [s]',
                                   float_range=(0.0, 1.0)),
+            metadata=declare(self, 'metadata', Parameter.Type.STRING_ARRAY,
+                             "Extra custom_data of metadata.yaml, 'key=value' strings "
+                             '(e.g. rig_profile=realistic, seed=7)'),
         )
 
     def _scan(self) -> None:

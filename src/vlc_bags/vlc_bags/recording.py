@@ -38,6 +38,19 @@ class RecorderConfig:
     compression: str = 'none'
     max_backlog_mb: float = 1000.0
     poll_period_s: float = 0.02
+    #: Extra ``custom_data`` of metadata.yaml as 'key=value' strings (e.g. the rig
+    #: profile and seed of a run).
+    metadata: tuple[str, ...] = ()
+
+    def custom_data(self) -> dict:
+        """``metadata`` as a dict (ValueError naming a malformed entry)."""
+        out = {}
+        for item in self.metadata:
+            key, sep, value = str(item).partition('=')
+            if not sep or not key.strip():
+                raise ValueError(f"metadata entry {item!r} is not 'key=value'")
+            out[key.strip()] = value.strip()
+        return out
 
     def __post_init__(self) -> None:
         if self.storage not in STORAGES:
@@ -54,6 +67,7 @@ class RecorderConfig:
             raise ValueError('queue_depth must be >= 1')
         if not self.max_backlog_mb > 0:
             raise ValueError('max_backlog_mb must be > 0')
+        self.custom_data()
         if not self.poll_period_s >= 0:
             raise ValueError('poll_period_s must be >= 0')
 
@@ -144,7 +158,8 @@ class RecordingSession:
         self.path = Path(path)
         data = {'recorder': 'vlc_bags/bag_recorder',
                 'timestamp_source': config.timestamp_source,
-                'flush_interval_s': str(config.flush_interval_s), **(custom_data or {})}
+                'flush_interval_s': str(config.flush_interval_s), **config.custom_data(),
+                **(custom_data or {})}
         self.writer = SplitBagWriter(self.path, storage=config.storage,
                                      compression=config.compression, custom_data=data)
         self.log = ReceiveTimesLog(self.path) if config.record_receive_times else None

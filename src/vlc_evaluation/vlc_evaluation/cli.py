@@ -157,6 +157,14 @@ def main(argv=None):
     parser.add_argument('--faults-docs', nargs='+', default=[],
                         help='faults: also write the fault table between the faults markers '
                              'of these Markdown files')
+    parser.add_argument('--rig-profile', default='ideal',
+                        help='rig profile of every rig scenario (ideal, realistic, harsh; '
+                             'config/rig_profiles.yaml): a drawn installation per seed, '
+                             'written beside each bag')
+    parser.add_argument('--calibration', choices=('drawn', 'checkerboard'), default='drawn',
+                        help="a drawn profile's belief calibration: drawn (the truth "
+                             'perturbed by a calibration\'s errors) or checkerboard (an '
+                             'actual calibration of the true lenses, ~10 s per scenario)')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -197,6 +205,15 @@ def main(argv=None):
             realtime_factor=args.realtime_factor))
     fault_scenarios = (faults.fault_scenarios(args.fault_speed, names=args.fault_names)
                        if args.faults else [])
+    if args.rig_profile != 'ideal':
+        from vlc_stereo_camera.core.installation import ProfileError, load_profile
+        try:
+            load_profile(args.rig_profile)
+        except ProfileError as exc:
+            parser.exit(2, f'run_evaluation: error: {exc}\n')
+        for name, group in list(groups.items()) + [('faults', fault_scenarios)]:
+            for scenario in group if name != 'replay' else ():
+                scenario.rig_profile, scenario.calibration = args.rig_profile, args.calibration
     total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
 

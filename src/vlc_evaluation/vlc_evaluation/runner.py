@@ -173,11 +173,68 @@ def bag_end_ns(bag, topic='/ground_truth/pose'):
     return last
 
 
-def _start_rig(graph, scenario, camera_subscribers):
+def write_installation(scenario, out_dir):
+    """The receivers' parameters for a drawn rig profile ({} for ``ideal``).
+
+    Draws the scenario's installation (the draw the rig nodes make from ``rig_profile``
+    and ``seed`` on the shipped vehicle and lamp map) and writes it beside the bag,
+    ``<out_dir>/<name>.installation/{belief,truth}/``: ``truth/truth.yaml`` records the
+    profile, the seed and every drawn value for the evaluation. Returns
+    ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``.
+    With ``scenario.calibration`` ``checkerboard`` the belief calibration is replaced by
+    an actual checkerboard calibration of the true lenses (``calibrate_installation``).
+    """
+    if scenario.rig_profile == 'ideal':
+        return {}
+    from vlc_common.core.lamp_map import LampMap
+    from vlc_common.core.vehicle import load_vehicle
+    from vlc_stereo_camera.core.installation import draw_installation
+    camera = scenario.node_params.get('stereo_camera_node', {})
+    inst = draw_installation(scenario.rig_profile, scenario.seed,
+                             load_vehicle(camera.get('vehicle_path', '')),
+                             LampMap.load(_rig_lamp_map_path(scenario)))
+    folder = pathlib.Path(out_dir) / f'{scenario.name}.installation'
+    paths = inst.write(folder)
+    if scenario.calibration == 'checkerboard':
+        from vlc_evaluation.installation_calibration import calibrate_installation
+        calibrate_installation(folder)
+    elif scenario.calibration != 'drawn':
+        raise ValueError(f'scenario {scenario.name}: calibration {scenario.calibration!r} is '
+                         'not drawn or checkerboard')
+    return {'vehicle_path': paths['belief/vehicle.yaml'],
+            'lamp_map_path': paths['belief/lamp_map.yaml']}
+
+
+def _rig_lamp_map_path(scenario):
+    """The lamp map the scenario's camera node renders (resolved path)."""
+    from vlc_common.core.lamp_map import resolve_lamp_map_path
+    camera = scenario.node_params.get('stereo_camera_node', {})
+    return resolve_lamp_map_path(camera.get('lamp_map_path', ''),
+                                 camera.get('alignment', 'straight'))
+
+
+def receiver_params(belief, scenario, exe):
+    """A processing node's parameters: the belief files under the scenario's own; a
+    ``lamp_map_path`` that names the rig's own (true) map is replaced by the survey (a
+    deliberately different receiver map, as in the forged-lamp and outage scenarios, is
+    kept as it is).
+    """
+    own = scenario.node_params.get(exe, {})
+    params = dict(belief, **own)
+    if belief and own.get('lamp_map_path') and (
+            os.path.realpath(os.path.expanduser(own['lamp_map_path']))
+            == os.path.realpath(_rig_lamp_map_path(scenario))):
+        params['lamp_map_path'] = belief['lamp_map_path']
+    return params
+
+
+def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
     rig = {'seed': scenario.seed, 'motion_profile': scenario.motion_profile,
            'start_chainage_m': float(scenario.start_chainage_m),
            'speed_kmh': float(scenario.speed_kmh),
            'realtime_factor': float(scenario.realtime_factor)}
+    if scenario.rig_profile != 'ideal':
+        rig['rig_profile'] = scenario.rig_profile
     rig_files = [graph.config_file('vlc_stereo_camera', 'rig.yaml')]
     # The IMU follows the camera's /clock (its default), which runs IMU_TAIL_S past the
     # last frame.
@@ -191,7 +248,8 @@ def _start_rig(graph, scenario, camera_subscribers):
     graph.start('vlc_stereo_camera', 'stereo_camera_node',
                 dict(rig, duration_s=float(scenario.duration_s), clock_tail_s=IMU_TAIL_S,
                      wait_for_subscribers=camera_subscribers,
-                     **scenario.node_params.get('stereo_camera_node', {})),
+                     **{**(camera_params or {}),
+                        **scenario.node_params.get('stereo_camera_node', {})}),
                 rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])
 
 
@@ -225,17 +283,22 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                           for p in graph.procs.values())
 
     try:
-        graph.start(*RECORDER, dict({'output': str(bag), 'topics': list(recorded_topics),
-                                     'discovery_interval_s': RECORDER_SCAN_S,
-                                     'flush_interval_s': RECORDER_FLUSH_S},
-                                    **scenario.node_params.get('bag_recorder', {})),
+        belief = {} if replay else write_installation(scenario, out_dir)
+        recorder = {'output': str(bag), 'topics': list(recorded_topics),
+                    'discovery_interval_s': RECORDER_SCAN_S,
+                    'flush_interval_s': RECORDER_FLUSH_S}
+        if belief:
+            recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
+                                    f'seed={scenario.seed}',
+                                    f'installation={out_dir / f"{scenario.name}.installation"}']
+        graph.start(*RECORDER, dict(recorder, **scenario.node_params.get('bag_recorder', {})),
                     [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
-            graph.start(package, exe, scenario.node_params.get(exe, {}),
+            graph.start(package, exe, receiver_params(belief, scenario, exe),
                         [graph.config_file(package, f'{exe}.yaml')])
         for package, exe, files in scenario.extra_nodes:
-            graph.start(package, exe, scenario.node_params.get(exe, {}),
+            graph.start(package, exe, receiver_params(belief, scenario, exe),
                         [graph.config_file(package, name) for name in files])
         required = required_subscriptions(recorded_topics, scenario.run_processing)
         for topic, count in scenario.extra_subscriptions.items():
@@ -249,8 +312,13 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                         if t not in ('/clock', '/ground_truth/pose', '/ground_truth/spots')}
         else:
             # decoder, spot locator, the probe's gate (, the recorder)
+            camera = {}
+            if belief and scenario.calibration == 'checkerboard':
+                belief_dir = pathlib.Path(belief['vehicle_path']).parent
+                camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
+                                               str(belief_dir / 'right.yaml')]
             _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
-                       + int('/stereo/left/image_raw' in recorded_topics))
+                       + int('/stereo/left/image_raw' in recorded_topics), camera)
         mark('started')
         missing = probe.wait_for_subscribers(required, READY_TIMEOUT_S, abort=died)
         mark('ready')

@@ -64,7 +64,14 @@ class Scenario:
     fault injector), not taken for another graph sharing the domain.
     ``kind`` (``companions``, ``outage``, ``forged``; '' = the paper's protocols) selects
     the scoring, ``kind_params`` its geometry (:mod:`.companions`). ``lean_recording``
-    leaves the 400 Hz IMU topics out of the bag (latency replays).
+    leaves the 400 Hz IMU topics out of the bag (latency replays). ``rig_profile``
+    (``ideal``, ``realistic``, ``harsh``): the rig's profile; a drawn one's installation
+    (belief and truth, profile, seed, every drawn value) is written beside the bag in
+    ``<name>.installation/`` and the processing nodes get its belief files;
+    ``calibration`` ``drawn`` (the installation's calibration: the truth perturbed by a
+    calibration's errors) or ``checkerboard`` (an actual ``stereo_calibrate`` of boards
+    rendered through the true lenses, ``calibrate_installation``; the camera node then
+    publishes it through ``calibration_paths``).
     """
 
     name: str
@@ -87,6 +94,8 @@ class Scenario:
     kind: str = ''
     kind_params: dict = field(default_factory=dict)
     lean_recording: bool = False
+    rig_profile: str = 'ideal'
+    calibration: str = 'drawn'
 
     @property
     def is_replay(self):

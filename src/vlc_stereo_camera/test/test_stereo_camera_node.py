@@ -160,6 +160,7 @@ def test_custom_frame_ids_and_no_clock(context):
     ('motion_profile', 'bogus', ValueError),
     ('row_time_s', 1e-4, ValueError),          # 720 rows × 100 µs > 1/30 s
     ('lamp_map_path', '/nonexistent/lamps.yaml', OSError),
+    ('calibration_paths', ['/nonexistent/left.yaml', '/nonexistent/right.yaml'], ValueError),
 ])
 def test_invalid_parameters_fail_at_construction(context, name, value, error):
     with pytest.raises(error):

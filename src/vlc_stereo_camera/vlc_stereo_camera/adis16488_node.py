@@ -256,6 +256,12 @@ class Adis16488Node(Node):
             f'{cfg.imu_frame_id}, seed {cfg.scenario.seed}, motion '
             f'{cfg.scenario.motion_profile}, realtime factor {cfg.realtime_factor:g}, '
             f'errors {"on" if cfg.noise_enabled else "off"}')
+        if cfg.scenario.rig_profile != 'ideal':
+            self.get_logger().info(
+                f'rig_profile {cfg.scenario.rig_profile}, seed {cfg.scenario.seed}: the drawn '
+                f'installation (IMU lever arm {np.round(mount.position_m, 4).tolist()} m, '
+                f'boresight {np.round(np.degrees(mount.rpy_rad), 3).tolist()} deg, clock '
+                f'offset {cfg.scenario.imu_clock_offset_s() * 1e3:+.3f} ms in the stamps)')
         if self._faults.imu_faults:
             self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
 

@@ -14,6 +14,15 @@ The sensor-fault parameters (``imu_dropouts_s``, ``camera_dropouts_s``, ``imu_bu
 parameters too, so every rig node has them and one ``rig.yaml`` gives the whole rig one
 fault schedule (:class:`~vlc_stereo_camera.core.sensor_faults.SensorFaults`, semantics
 there). They act at publication time only: the physics is the same with and without.
+
+``rig_profile`` (``config/rig_profiles.yaml``; :mod:`.core.installation`) makes the rig a
+real installation: ``ideal`` (the default) is the rig as it always was; ``realistic``
+and ``harsh`` draw, from the profile and ``seed``, the vehicle's true camera, mount,
+IMU boresight and clock offset, the line's true lamps, and the belief the receivers get
+(calibration, mount file as measured, surveyed lamp map). Every rig node draws the same
+installation: :meth:`ScenarioConfig.vehicle` is then the TRUE mount, the trajectory's
+platform motion is the profile's car body, and the IMU stamps carry the drawn clock
+offset. ``installation_dir`` (camera node) receives ``belief/`` and ``truth/``.
 """
 from dataclasses import dataclass
 
@@ -25,6 +34,8 @@ from vlc_common.core.lamp_map import default_lamp_map_path
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.stamps import epoch_to_ns
+from vlc_stereo_camera.core.car_body import CarBody, CarBodyConfig
+from vlc_stereo_camera.core.installation import draw_vehicle, load_profile
 from vlc_stereo_camera.core.sensor_faults import SensorFaults
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
@@ -54,6 +65,16 @@ SCENARIO_PARAMETERS = (
     ('alignment', 'straight', _desc('Track alignment: ' + ', '.join(NAMED_ALIGNMENTS)
                                     + ' (straight = along map x).',
                                     ptype=ParameterType.PARAMETER_STRING)),
+    ('rig_profile', 'ideal', _desc('Rig profile of config/rig_profiles.yaml: ideal (the '
+                                   'nominal rig, receivers share its truth), realistic, '
+                                   'harsh (drawn installation: truth vs belief, per seed).',
+                                   ptype=ParameterType.PARAMETER_STRING)),
+    ('rig_profiles_path', '', _desc("Rig profiles file; '' = share/vlc_stereo_camera/"
+                                    'config/rig_profiles.yaml.',
+                                    ptype=ParameterType.PARAMETER_STRING)),
+    ('installation_dir', '', _desc("stereo_camera_node with a drawn profile: folder that "
+                                   "receives belief/ and truth/ of the installation; '' = "
+                                   'none written.', ptype=ParameterType.PARAMETER_STRING)),
     # --- sensor faults (core/sensor_faults.py), applied at publication; default off ---
     ('imu_dropouts_s', [], _desc('IMU samples lost: flat pairs [start_s, duration_s, ...] '
                                  'of simulated time; samples with start_s <= t < start_s + '
@@ -96,15 +117,39 @@ class ScenarioConfig:
     vibration_scale: float
     alignment: str = 'straight'
     vehicle_path: str = ''
+    rig_profile: str = 'ideal'
+    rig_profiles_path: str = ''
+    installation_dir: str = ''
     imu_dropouts_s: tuple = ()
     camera_dropouts_s: tuple = ()
     imu_burst_s: float = 0.0
     imu_stamp_offset_s: float = 0.0
     sensor_clock_jumps_s: tuple = ()
 
-    def vehicle(self):
-        """The VehicleMount the rig's sensors sit on (VehicleFileError if unusable)."""
+    def profile(self):
+        """The RigProfile named by ``rig_profile`` (ProfileError, a ValueError, naming the
+        file and field if unknown or unparsable).
+        """
+        return load_profile(self.rig_profile, self.rig_profiles_path)
+
+    def nominal_vehicle(self):
+        """The VehicleMount of ``vehicle_path`` (the drawing; VehicleFileError if unusable)."""
         return load_vehicle(self.vehicle_path)
+
+    def vehicle(self):
+        """The VehicleMount the rig's sensors truly sit on: the nominal file for the ideal
+        profile, else the installation's drawn truth (same draw in every rig node).
+        """
+        profile = self.profile()
+        nominal = self.nominal_vehicle()
+        return nominal if profile.ideal else draw_vehicle(profile, self.seed, nominal)[0]
+
+    def imu_clock_offset_s(self):
+        """The drawn IMU-minus-camera clock offset of the installation, s (0 for ideal)."""
+        profile = self.profile()
+        if profile.ideal:
+            return 0.0
+        return draw_vehicle(profile, self.seed, self.nominal_vehicle())[2]
 
     def track_alignment(self):
         """The Alignment named by ``alignment`` (raises ValueError if unknown)."""
@@ -121,15 +166,21 @@ class ScenarioConfig:
                                 speed_mps=self.speed_kmh / 3.6, accel_mps2=self.accel_mps2,
                                 brake_mps2=self.brake_mps2, dwell_s=self.dwell_s,
                                 cruise_s=self.cruise_s)
-        vibration = Vibration(VibrationConfig(enabled=self.vibration_enabled,
-                                              scale=self.vibration_scale), seed=self.seed)
+        car_body = self.profile().car_body
+        if car_body is not None and self.vibration_enabled:
+            vibration = CarBody(CarBodyConfig(spectrum=car_body['spectrum'],
+                                              scale=car_body['scale'], seed=self.seed))
+        else:
+            vibration = Vibration(VibrationConfig(enabled=self.vibration_enabled,
+                                                  scale=self.vibration_scale), seed=self.seed)
         return Trajectory(profile, vibration, self.track_alignment())
 
     def sensor_faults(self):
         """The SensorFaults these parameters describe (raises ValueError if invalid)."""
         faults = SensorFaults.from_parameters(
             imu_dropouts_s=self.imu_dropouts_s, camera_dropouts_s=self.camera_dropouts_s,
-            imu_burst_s=self.imu_burst_s, imu_stamp_offset_s=self.imu_stamp_offset_s,
+            imu_burst_s=self.imu_burst_s,
+            imu_stamp_offset_s=self.imu_stamp_offset_s + self.imu_clock_offset_s(),
             sensor_clock_jumps_s=self.sensor_clock_jumps_s)
         faults.check_epoch(epoch_to_ns(self.epoch_s))
         return faults
@@ -155,5 +206,6 @@ def declare_scenario_parameters(node):
         else:
             values[name] = node.declare_parameter(name, default, descriptor).value
     config = ScenarioConfig(**values)
+    config.profile()                # an unknown profile or a bad file stops the node (exit 2)
     config.sensor_faults()          # validate at start-up, in every rig node
     return config

@@ -49,7 +49,24 @@ frame is rendered and the pacing and ``/clock`` run on unchanged.
 
 Published frame stamp = epoch + t0 + Σ_{at_s ≤ t0} jump_s. Diagnostics then also report
 ``frames_dropped``.
+
+Rig profile (shared ``rig_profile``; :mod:`.core.installation`): ``ideal`` (default) is
+the rig above. ``realistic`` / ``harsh`` draw an installation from the profile and
+``seed``: the images are rendered RAW through the true lenses, from the true mount, of
+the true lamps (positions as built, tilted normals, diameters, brightness, dead lamps),
+with the row time, fixed pattern, corner PSF and wall reflections of the profile; but
+``camera_info`` carries the BELIEF (the drawn calibration: K, D, R, P per camera), and
+``ground_truth/spots`` the raw truth. With ``installation_dir`` the node writes
+``belief/{left,right,vehicle,lamp_map}.yaml`` (for the receivers: ``vehicle_path``,
+``lamp_map_path``) and ``truth/`` (the evaluation's only) there at start-up.
+
+``calibration_paths`` [left.yaml, right.yaml] (camera_info_manager files, or one OpenCV
+FileStorage file): publish that calibration as camera_info instead, as a camera driver
+publishes its camera_info_url (e.g. a checkerboard calibration of the drawn lenses made by
+``calibrate_installation``). A file that does not parse or was calibrated for another
+image size stops the node with the file and field named, exit code 2.
 """
+import dataclasses
 from dataclasses import dataclass
 import queue
 import sys
@@ -65,16 +82,19 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+from vlc_common.core.calibration import load_stereo_calibration
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.process import keep_large_buffers, run_node, spin_until_finished
 from vlc_stereo_camera import conversions
+from vlc_stereo_camera.core.installation import NominalCamera, draw_installation
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
 from vlc_stereo_camera.rig_params import declare_scenario_parameters
@@ -92,6 +112,11 @@ NODE_PARAMETERS = (
     ('lamp_map_path', '', _desc("Lamp map YAML; '' = the installed map of the alignment "
                                 '(share/vlc_common/config/lamp_map.yaml for straight, '
                                 'lamp_map_<alignment>.yaml otherwise).', ptype=_STR)),
+    ('calibration_paths', [], _desc('camera_info published: [] = the rig\'s own (the ideal '
+                                    'pair, or a drawn profile\'s belief calibration); '
+                                    '[left.yaml, right.yaml] camera_info_manager files or one '
+                                    'OpenCV FileStorage file.',
+                                    ptype=ParameterType.PARAMETER_STRING_ARRAY)),
     ('image_width', 1280, _desc('Image width, px.', 64, 4096, integer=True)),
     ('image_height', 720, _desc('Image height (rows), px.', 48, 4096, integer=True)),
     ('fx', 1040.0, _desc('Focal length, px (3.9 mm / 3.75 um).', 50.0, 10000.0)),
@@ -155,6 +180,7 @@ class StereoCameraNodeConfig:
     left_frame_id: str
     right_frame_id: str
     lamp_map_path: str
+    calibration_paths: tuple
     image_width: int
     image_height: int
     fx: float
@@ -189,6 +215,12 @@ class StereoCameraNodeConfig:
     clock_tail_s: float
     wait_for_subscribers: int
 
+    def nominal_camera(self):
+        """The stereo camera as designed (an installation's nominal)."""
+        return NominalCamera(width=self.image_width, height=self.image_height, fx=self.fx,
+                             fy=self.fy, cx=self.cx, cy=self.cy, baseline_m=self.baseline_m,
+                             row_time_s=self.row_time_s)
+
     def renderer_config(self, epoch_s, vehicle):
         """The RendererConfig these parameters describe on ``vehicle`` (a VehicleMount;
         ValueError if inconsistent).
@@ -222,18 +254,46 @@ class StereoCameraNode(Node):
     def __init__(self, **kwargs):
         super().__init__('stereo_camera_node', **kwargs)
         self.scenario = declare_scenario_parameters(self)
+        values = {}
         for name, default, descriptor in NODE_PARAMETERS:
-            self.declare_parameter(name, default, descriptor)
-        self.config = cfg = StereoCameraNodeConfig(
-            **{name: self.get_parameter(name).value for name, _, _ in NODE_PARAMETERS})
-        renderer_config = cfg.renderer_config(self.scenario.epoch_s, self.scenario.vehicle())
+            # rclpy infers no type from []: unset means empty
+            values[name] = self.declare_parameter(
+                name, Parameter.Type.STRING_ARRAY if default == [] else default,
+                descriptor).value
+        values['calibration_paths'] = tuple(values['calibration_paths'] or ())
+        self.config = cfg = StereoCameraNodeConfig(**values)
         trajectory = self.scenario.trajectory()
         lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
                                                       self.scenario.alignment))
+        profile = self.scenario.profile()
+        if profile.ideal:
+            renderer_config = cfg.renderer_config(self.scenario.epoch_s,
+                                                  self.scenario.nominal_vehicle())
+            self.installation = None
+        else:
+            self.installation = inst = draw_installation(
+                profile, self.scenario.seed, self.scenario.nominal_vehicle(), lamp_map,
+                cfg.nominal_camera())
+            renderer_config = dataclasses.replace(
+                cfg.renderer_config(self.scenario.epoch_s, inst.vehicle_truth),
+                **inst.renderer_fields())
+            lamp_map = inst.lamp_map_truth
         self.renderer = StereoRenderer(renderer_config, lamp_map, trajectory,
                                        seed=self.scenario.seed)
-        self._infos = self.renderer.camera_info_dicts()
-        self._readout_s = ((cfg.image_height - 1) * cfg.row_time_s + cfg.exposure_s)
+        if self.installation is None:
+            self._infos = self.renderer.camera_info_dicts()
+        else:
+            self._infos = self.installation.calibration.camera_info_dicts()
+            self._report_installation()
+        if cfg.calibration_paths:
+            paths = list(cfg.calibration_paths)
+            calibration = load_stereo_calibration(paths if len(paths) > 1 else paths[0])
+            calibration.check_image_size(cfg.image_width, cfg.image_height)
+            self._infos = calibration.camera_info_dicts()
+            self.get_logger().info(f'camera_info from {", ".join(paths)} (stated RMS '
+                                   f'{calibration.rms_px:g} px)')
+        self._readout_s = ((cfg.image_height - 1) * renderer_config.row_time_s
+                           + cfg.exposure_s)
 
         image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -275,6 +335,22 @@ class StereoCameraNode(Node):
             f'motion {self.scenario.motion_profile}, seed {self.scenario.seed}')
         if self._faults.camera_faults:
             self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
+
+    def _report_installation(self):
+        """Log the drawn installation (and write it into ``installation_dir``)."""
+        inst = self.installation
+        truth = inst.truth_dict()
+        where = ''
+        if self.scenario.installation_dir:
+            inst.write(self.scenario.installation_dir)
+            where = f'; belief/ and truth/ written to {self.scenario.installation_dir}'
+        self.get_logger().info(
+            f'rig_profile {inst.profile.name}, seed {inst.seed}: raw images of the drawn '
+            f'installation, camera_info = its calibration (stated RMS '
+            f'{inst.calibration.rms_px:g} px), trigger skew '
+            f'{inst.optics.trigger_skew_s * 1e6:.1f} us, IMU clock offset '
+            f'{inst.imu_clock_offset_s * 1e3:+.3f} ms, dead lamps {truth.get("dead_lamps", [])}, '
+            f'gross survey errors {truth.get("gross_survey_errors", [])}{where}')
 
     # ------------------------------------------------------------ worker threads
     def _render_loop(self):

@@ -159,6 +159,9 @@ class RendererConfig:
     stray_light: StrayLightConfig = None      # each lamp's reflection on the wall
     distractors: tuple = ()                   # Distractor lights that are not lamps
     noise_table_size: int = 0                 # > 0: ROI noise from a pre-drawn table
+    # Per-lamp brightness of the true line: ((uid, factor), ...), factor × the lamp's
+    # luminous flux; 0 = a dead lamp (not rendered, no truth record). () = every lamp 1.
+    lamp_brightness: tuple = ()
 
     def __post_init__(self):
         for ok, message in [
@@ -188,6 +191,8 @@ class RendererConfig:
             (self.noise_table_size >= 0, 'noise_table_size must be >= 0 (0 = fresh draws)'),
             (self.optics_truth is None or isinstance(self.optics_truth, OpticsTruth),
              'optics_truth must be an OpticsTruth or None'),
+            (all(f >= 0.0 and np.isfinite(f) for _, f in self.lamp_brightness),
+             'lamp_brightness factors must be finite and >= 0'),
         ]
         for ok, message in checks:
             if not ok:
@@ -392,6 +397,7 @@ class StereoRenderer:
                                              else 0.0, sigma_core))) + 2
         self._waveforms = {}
         self._geometry = {}
+        self._brightness = {int(uid): float(f) for uid, f in config.lamp_brightness}
         self._setup_cameras()
         self._distractors = [self._distractor_geometry(i, d)
                              for i, d in enumerate(config.distractors)]
@@ -472,6 +478,7 @@ class StereoRenderer:
         if g is None:
             d = self.config.lamp_diameter_m or lamp.diameter_m
             g = self._geometry[lamp.uid] = _LampGeometry(lamp, d)
+            g.brightness = self._brightness.get(int(lamp.uid), 1.0)
         return g
 
     # ---------------------------------------------------------------- poses
@@ -864,6 +871,8 @@ class StereoRenderer:
         t_mid = 0.5 * (edges[:, :-1] + edges[:, 1:])
         if on_e is None:
             on_e = c.optics.on_electrons(g.area_m2, truth['cos_phi'], c.exposure_s)
+            if g.brightness != 1.0:
+                on_e *= g.brightness
         pose = self._poses.at(t_mid)
         out = []
         for camera, roi in enumerate(rois):
@@ -1058,6 +1067,8 @@ class StereoRenderer:
         c = self.config
         if on_e is None:
             on_e = c.optics.on_electrons(g.area_m2, truth['cos_phi'], c.exposure_s)
+            if g.brightness != 1.0:
+                on_e *= g.brightness
         if waveform is None:
             waveform = self.lamp_waveform(g.lamp.uid)
         out = []
@@ -1140,6 +1151,8 @@ class StereoRenderer:
                                                           + np.outer(np.sin(ang), g.e2))
             exitance = (sl.reflection_fraction * optics.luminous_flux_lm
                         / (2.0 * np.pi * sl.reflection_sigma_m ** 2))
+            if getattr(g, 'brightness', 1.0) != 1.0:
+                exitance *= g.brightness
             cached = g.reflection = (centre, rim, exitance / np.pi)
         return cached
 
@@ -1324,6 +1337,8 @@ class StereoRenderer:
         items = ([], [])
         truth = []
         near = self.lamp_map.near(x0, c.lamp_search_ahead_m, c.lamp_search_behind_m)
+        if self._brightness:
+            near = [lamp for lamp in near if self._brightness.get(int(lamp.uid), 1.0) > 0.0]
         candidates = [g for g in self._distractors
                       if x0 - c.lamp_search_behind_m <= g.centre[0] <= x0 + c.lamp_search_ahead_m]
         if self._truthful:

@@ -1,0 +1,585 @@
+"""A rig installation: the vehicle's and the line's truth, and what the receivers believe.
+
+A real train does not know its camera, its mount or its lamps exactly: it has a
+checkerboard calibration, a measured vehicle mount file and a surveyed lamp map, each
+with the errors of the procedure that produced it. For a rig profile (``ideal``,
+``realistic``, ``harsh``; values and sources in ``config/rig_profiles.yaml``) and a seed
+this module draws (ROS-free, deterministic per seed):
+
+* the **vehicle truth**: each camera's true lens (:class:`OpticsTruth`: K, plumb_bob
+  distortion, the right camera's pose, the trigger skew), the true row time, the stereo
+  camera's and the IMU's true mount on ``base_link`` (nominal + installation deviation),
+  the IMU clock's offset from the camera's;
+* the **line truth**: per lamp its true normal (tilted), diameter and brightness, and
+  which lamps are dead; the true positions are the nominal map's (the as-built line);
+* the **belief** handed to the receivers: a stereo calibration (the truth perturbed by
+  the errors a field checkerboard calibration of the stated reprojection RMS leaves, in
+  milliseconds per draw; an actual calibration from boards rendered through the true
+  lenses, ~10 s, is the tooling command ``calibrate_installation``), the vehicle mount
+  as measured (truth + measurement error) and the surveyed lamp map (true positions +
+  survey error per axis, a few gross errors, the survey 1σ in ``position_sigma_m``).
+
+:func:`draw_installation` returns an :class:`Installation`; :meth:`Installation.write`
+puts ``belief/{left,right,vehicle,lamp_map}.yaml`` and ``truth/{truth,vehicle,lamp_map,
+left,right}.yaml`` into a folder (command ``make_installation``). Each part draws from
+its own stream ``numpy.random.default_rng([seed, tag, ...])`` (each lamp from one keyed
+by its UID), so the IMU node and the camera node draw the same vehicle without drawing
+the rest, and a lamp's draw does not depend on the map around it.
+
+The ``ideal`` profile draws nothing: truth = belief = the nominal files and the ideal
+rectified pair (the rig as it always was).
+"""
+from dataclasses import dataclass, field
+import math
+import pathlib
+
+import numpy as np
+import yaml
+
+from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
+from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig
+from vlc_common.core.config_files import config_path
+from vlc_common.core.lamp_map import Lamp, LampMap
+from vlc_common.core.vehicle import CameraMount, ImuMount, VehicleMount
+from vlc_stereo_camera.core.optics_truth import OpticsTruth, TrueCamera
+
+PACKAGE = 'vlc_stereo_camera'
+PROFILES_FILE = 'rig_profiles.yaml'
+PROFILE_NAMES = ('ideal', 'realistic', 'harsh')
+
+#: Stream tags of the draws (one independent generator per part).
+_TAG_OPTICS, _TAG_CALIBRATION, _TAG_MOUNT, _TAG_CLOCK, _TAG_LAMP = (
+    0x0B71C, 0xCA11B, 0x30047, 0xC10CC, 0x1A4B5)
+
+# Section → key → kind: 'number' (>= 0), 'pair' ([mean, sigma >= 0]), 'range' ([lo, hi],
+# 0 < lo <= hi), 'fraction' (0..1).
+_SCHEMA = {
+    'lens': {'focal_sigma': 'number', 'aspect_sigma': 'number',
+             'principal_point_sigma_px': 'number', 'k1': 'pair', 'k2': 'pair', 'k3': 'pair',
+             'tangential_sigma': 'number', 'right_rotation_sigma_deg': 'number',
+             'right_position_sigma_m': 'number', 'trigger_skew_s': 'range',
+             'row_time_ppm': 'number'},
+    'calibration': {'reprojection_rms_px': 'number', 'focal_sigma': 'number',
+                    'principal_point_sigma_px': 'number', 'k1_sigma': 'number',
+                    'k2_sigma': 'number', 'k3_sigma': 'number', 'tangential_sigma': 'number',
+                    'rotation_sigma_deg': 'number', 'translation_sigma_m': 'number'},
+    'mount': {'camera_position_sigma_m': 'number', 'camera_angle_sigma_deg': 'number',
+              'camera_position_measurement_sigma_m': 'number',
+              'camera_angle_measurement_sigma_deg': 'number',
+              'imu_position_sigma_m': 'number', 'imu_boresight_sigma_deg': 'number',
+              'imu_position_measurement_sigma_m': 'number',
+              'imu_boresight_measurement_sigma_deg': 'number',
+              'imu_clock_offset_sigma_s': 'number'},
+    'lamps': {'survey_sigma_plan_m': 'number', 'survey_sigma_height_m': 'number',
+              'gross_error_fraction': 'fraction', 'gross_error_m': 'number',
+              'normal_tilt_sigma_deg': 'number', 'diameter_sigma': 'number',
+              'brightness_sigma': 'number', 'dead_fraction': 'fraction'},
+    'sensor': {'prnu_rms': 'number', 'dsnu_rms_e': 'number', 'row_noise_e': 'number',
+               'hot_pixel_fraction': 'fraction', 'psf_sigma_corner_px': 'number',
+               'wall_reflection_fraction': 'fraction'},
+}
+#: A lamp's brightness factor is clipped to this range (a dead lamp is 0, drawn apart).
+BRIGHTNESS_RANGE = (0.2, 1.5)
+
+
+class ProfileError(ValueError):
+    """An unusable rig profile: the message is ``<file>: <field>: <problem>``."""
+
+    def __init__(self, source, field, problem):
+        self.source, self.field, self.problem = str(source), str(field), str(problem)
+        super().__init__(f'{self.source}: {self.field}: {self.problem}')
+
+
+def default_profiles_path():
+    """``share/vlc_stereo_camera/config/rig_profiles.yaml`` (installed, else source)."""
+    return str(config_path(PACKAGE, PROFILES_FILE))
+
+
+@dataclass(frozen=True)
+class RigProfile:
+    """One profile of ``rig_profiles.yaml``: ``sections`` maps section → key → value
+    (empty for ``ideal``); ``car_body`` is None or {spectrum, scale}.
+    """
+
+    name: str
+    sections: dict = field(default_factory=dict)
+    car_body: dict = None
+    source: str = ''
+
+    @property
+    def ideal(self):
+        """True for a profile that draws nothing (the nominal rig)."""
+        return not self.sections
+
+    @property
+    def lens(self):
+        return self.sections.get('lens', {})
+
+    @property
+    def calibration(self):
+        return self.sections.get('calibration', {})
+
+    @property
+    def mount(self):
+        return self.sections.get('mount', {})
+
+    @property
+    def lamps(self):
+        return self.sections.get('lamps', {})
+
+    @property
+    def sensor(self):
+        return self.sections.get('sensor', {})
+
+
+def _check_value(source, where, kind, value):
+    def number(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ProfileError(source, where, f'{v!r} is not a finite number')
+        return float(v)
+    if kind in ('number', 'fraction'):
+        v = number(value)
+        if v < 0.0 or (kind == 'fraction' and v > 1.0):
+            raise ProfileError(source, where, f'{v} must be in '
+                               + ('[0, 1]' if kind == 'fraction' else '[0, inf)'))
+        return v
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        form = 'mean, sigma' if kind == 'pair' else 'lo, hi'
+        raise ProfileError(source, where, f'expected [{form}], got {value!r}')
+    a, b = number(value[0]), number(value[1])
+    if kind == 'pair' and b < 0.0:
+        raise ProfileError(source, where, f'sigma {b} must be >= 0')
+    if kind == 'range' and not 0.0 < a <= b:
+        raise ProfileError(source, where, f'[{a}, {b}] must satisfy 0 < lo <= hi')
+    return (a, b)
+
+
+def _parse_profile(name, data, source):
+    if data is None or data == {}:
+        return RigProfile(name, {}, None, source)
+    if not isinstance(data, dict):
+        raise ProfileError(source, name, 'expected a mapping of sections')
+    unknown = sorted(set(data) - set(_SCHEMA) - {'car_body'})
+    if unknown:
+        raise ProfileError(source, f'{name}.{unknown[0]}', 'unknown section (known: '
+                           + ', '.join([*_SCHEMA, 'car_body']) + ')')
+    sections = {}
+    for section, keys in _SCHEMA.items():
+        values = data.get(section)
+        if not isinstance(values, dict):
+            raise ProfileError(source, f'{name}.{section}', 'missing' if values is None
+                               else 'expected a mapping')
+        for key in values:
+            if key not in keys:
+                raise ProfileError(source, f'{name}.{section}.{key}', 'unknown key (known: '
+                                   + ', '.join(keys) + ')')
+        sections[section] = {}
+        for key, kind in keys.items():
+            if key not in values:
+                raise ProfileError(source, f'{name}.{section}.{key}', 'missing')
+            sections[section][key] = _check_value(source, f'{name}.{section}.{key}', kind,
+                                                  values[key])
+    car_body = data.get('car_body')
+    if car_body is not None:
+        from vlc_stereo_camera.core.track_irregularity import SPECTRA
+        if (not isinstance(car_body, dict) or car_body.get('spectrum') not in SPECTRA
+                or set(car_body) - {'spectrum', 'scale'}):
+            raise ProfileError(source, f'{name}.car_body', 'expected null or {spectrum: '
+                               + '|'.join(SPECTRA) + f', scale: number}}, got {car_body!r}')
+        car_body = {'spectrum': car_body['spectrum'],
+                    'scale': _check_value(source, f'{name}.car_body.scale', 'number',
+                                          car_body.get('scale', 1.0))}
+    return RigProfile(name, sections, car_body, source)
+
+
+def load_profiles(path=''):
+    """Every profile of a profiles file ('' = the shipped one) as {name: RigProfile}.
+
+    Raises :class:`ProfileError` naming the file and the field when the file is missing,
+    is not YAML, or a value is missing, unknown or out of range.
+    """
+    path = str(path) if path else default_profiles_path()
+    try:
+        text = pathlib.Path(path).read_text(encoding='utf-8')
+    except OSError as exc:
+        raise ProfileError(path, '(file)', f'cannot read: {exc.strerror}') from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ProfileError(path, '(file)', f'not valid YAML ({exc})') from None
+    if not isinstance(data, dict) or not data:
+        raise ProfileError(path, '(file)', 'expected a mapping of profile names')
+    if 'ideal' not in data:
+        raise ProfileError(path, 'ideal', 'missing (the ideal profile must be defined)')
+    return {str(name): _parse_profile(str(name), body, path) for name, body in data.items()}
+
+
+def load_profile(name, path=''):
+    """The profile ``name`` of a profiles file; :class:`ProfileError` if unknown."""
+    profiles = load_profiles(path)
+    if name not in profiles:
+        raise ProfileError(profiles['ideal'].source, 'rig_profile',
+                           f'unknown profile {name!r} (known: {", ".join(profiles)})')
+    return profiles[name]
+
+
+# ------------------------------------------------------------------ draws
+@dataclass(frozen=True)
+class NominalCamera:
+    """The stereo camera as designed: image size (px), pinhole (px), baseline (m)."""
+
+    width: int = 1280
+    height: int = 720
+    fx: float = 1040.0
+    fy: float = 1040.0
+    cx: float = 639.5
+    cy: float = 359.5
+    baseline_m: float = StereoRig.baseline_m
+    row_time_s: float = 30e-6
+
+    def rig(self):
+        return StereoRig(intrinsics=CameraIntrinsics(self.width, self.height, self.fx,
+                                                     self.fy, self.cx, self.cy),
+                         baseline_m=self.baseline_m)
+
+
+def _rng(seed, tag, *more):
+    return np.random.default_rng([int(seed), tag, *[int(m) for m in more]])
+
+
+def draw_optics(profile, seed, nominal=NominalCamera()):
+    """(OpticsTruth, row_time_s): the true stereo camera of the vehicle (``lens`` section).
+
+    None and the nominal row time for the ideal profile.
+    """
+    if profile.ideal:
+        return None, nominal.row_time_s
+    p = profile.lens
+    rng = _rng(seed, _TAG_OPTICS)
+
+    def camera():
+        fx = nominal.fx * (1.0 + p['focal_sigma'] * rng.standard_normal())
+        fy = fx * nominal.fy / nominal.fx * (1.0 + p['aspect_sigma'] * rng.standard_normal())
+        pp = p['principal_point_sigma_px'] * rng.standard_normal(2)
+        k1, k2, k3 = (m + s * rng.standard_normal() for m, s in (p['k1'], p['k2'], p['k3']))
+        p1, p2 = p['tangential_sigma'] * rng.standard_normal(2)
+        return TrueCamera(fx=float(fx), fy=float(fy), cx=float(nominal.cx + pp[0]),
+                          cy=float(nominal.cy + pp[1]),
+                          distortion=tuple(float(v) for v in (k1, k2, p1, p2, k3)))
+    left, right = camera(), camera()
+    rotation = p['right_rotation_sigma_deg'] * rng.standard_normal(3)
+    position = (np.array([nominal.baseline_m, 0.0, 0.0])
+                + p['right_position_sigma_m'] * rng.standard_normal(3))
+    lo, hi = p['trigger_skew_s']
+    skew = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    row_time = nominal.row_time_s * (1.0 + 1e-6 * p['row_time_ppm'] * rng.standard_normal())
+    return OpticsTruth(left=left, right=right, right_rotation_deg=tuple(rotation.tolist()),
+                       right_position_m=tuple(position.tolist()),
+                       trigger_skew_s=skew), float(row_time)
+
+
+def calibration_error(profile, rng):
+    """One draw of the calibration's errors (belief − truth), a dict of arrays:
+    ``focal`` (2, 2) relative (camera, fx/fy), ``principal_point_px`` (2, 2),
+    ``distortion`` (2, 5) [k1, k2, p1, p2, k3], ``rotation_deg`` (3,),
+    ``translation_m`` (3,).
+    """
+    c = profile.calibration
+    d_sigma = np.array([c['k1_sigma'], c['k2_sigma'], c['tangential_sigma'],
+                        c['tangential_sigma'], c['k3_sigma']])
+    return {'focal': c['focal_sigma'] * rng.standard_normal((2, 2)),
+            'principal_point_px': c['principal_point_sigma_px'] * rng.standard_normal((2, 2)),
+            'distortion': d_sigma * rng.standard_normal((2, 5)),
+            'rotation_deg': c['rotation_sigma_deg'] * rng.standard_normal(3),
+            'translation_m': c['translation_sigma_m'] * rng.standard_normal(3)}
+
+
+def believed_optics(truth, error):
+    """The optics a calibration with ``error`` (:func:`calibration_error`) reports."""
+    cams = []
+    for i, cam in enumerate(truth.cameras):
+        cams.append(TrueCamera(fx=float(cam.fx * (1.0 + error['focal'][i, 0])),
+                               fy=float(cam.fy * (1.0 + error['focal'][i, 1])),
+                               cx=float(cam.cx + error['principal_point_px'][i, 0]),
+                               cy=float(cam.cy + error['principal_point_px'][i, 1]),
+                               distortion=tuple(np.asarray(cam.distortion)
+                                                + error['distortion'][i])))
+    return OpticsTruth(left=cams[0], right=cams[1],
+                       right_rotation_deg=tuple(np.asarray(truth.right_rotation_deg)
+                                                + error['rotation_deg']),
+                       right_position_m=tuple(np.asarray(truth.right_position_m)
+                                              + error['translation_m']),
+                       trigger_skew_s=truth.trigger_skew_s)
+
+
+def draw_calibration(profile, seed, optics, nominal=NominalCamera(), camera_name='stereo'):
+    """(StereoCalibration, error dict): the belief calibration of ``optics``.
+
+    Ideal profile: the rig's ideal rectified pair (what the camera node always published).
+    """
+    if profile.ideal or optics is None:
+        pair = StereoCameraModel.from_rig(nominal.rig())
+        return StereoCalibration(pair.left, pair.right, camera_name=camera_name), {}
+    error = calibration_error(profile, _rng(seed, _TAG_CALIBRATION))
+    pair = believed_optics(optics, error).stereo_model(nominal.width, nominal.height)
+    rms = profile.calibration['reprojection_rms_px']
+    return StereoCalibration(pair.left, pair.right, camera_name=camera_name, rms_px=rms,
+                             left_rms_px=rms, right_rms_px=rms), error
+
+
+def _perturbed_mount(camera, imu, rng, pos_sigma, angle_sigma, imu_pos_sigma, imu_rpy_sigma):
+    """A copy of (camera, imu) mounts with normal deviations drawn in a fixed order."""
+    d_pos = pos_sigma * rng.standard_normal(3)
+    d_ang = angle_sigma * rng.standard_normal(2)
+    d_imu_pos = imu_pos_sigma * rng.standard_normal(3)
+    d_imu_rpy = np.radians(imu_rpy_sigma) * rng.standard_normal(3)
+    return (CameraMount(position_m=camera.position_m + d_pos,
+                        placement_angle_deg=camera.placement_angle_deg + d_ang[0],
+                        pitch_deg=camera.pitch_deg + d_ang[1]),
+            ImuMount(position_m=imu.position_m + d_imu_pos, rpy_rad=imu.rpy_rad + d_imu_rpy))
+
+
+def draw_vehicle(profile, seed, nominal):
+    """(truth, belief, imu_clock_offset_s): the mount of the sensors on ``base_link``.
+
+    truth = ``nominal`` (a VehicleMount) + installation deviation; belief (the mount file
+    as measured) = truth + measurement error; the photodiode is left nominal. The ideal
+    profile returns the nominal mount for both and 0.
+    """
+    if profile.ideal:
+        return nominal, nominal, 0.0
+    m = profile.mount
+    rng = _rng(seed, _TAG_MOUNT)
+    cam, imu = _perturbed_mount(nominal.camera, nominal.imu, rng, m['camera_position_sigma_m'],
+                                m['camera_angle_sigma_deg'], m['imu_position_sigma_m'],
+                                m['imu_boresight_sigma_deg'])
+    truth = VehicleMount(vehicle_id=nominal.vehicle_id, frame_id=nominal.frame_id, camera=cam,
+                         imu=imu, photodiode=nominal.photodiode, source='(truth)')
+    cam_b, imu_b = _perturbed_mount(cam, imu, rng, m['camera_position_measurement_sigma_m'],
+                                    m['camera_angle_measurement_sigma_deg'],
+                                    m['imu_position_measurement_sigma_m'],
+                                    m['imu_boresight_measurement_sigma_deg'])
+    belief = VehicleMount(vehicle_id=nominal.vehicle_id, frame_id=nominal.frame_id,
+                          camera=cam_b, imu=imu_b, photodiode=nominal.photodiode,
+                          source='(as measured)')
+    offset = float(m['imu_clock_offset_sigma_s'] * _rng(seed, _TAG_CLOCK).standard_normal())
+    return truth, belief, offset
+
+
+@dataclass
+class LampDraw:
+    """One lamp's draw: true normal, diameter (m), brightness factor (0 = dead), survey
+    error (3,) m in map axes (including a gross error), ``gross``.
+    """
+
+    uid: int
+    normal: np.ndarray
+    diameter_m: float
+    brightness: float
+    survey_error_m: np.ndarray
+    gross: bool
+    dead: bool
+
+
+def _wall_axes(normal):
+    """Two unit vectors in the disc plane: along (≈ +x) and across (≈ up)."""
+    e1 = np.array([1.0, 0.0, 0.0]) - normal[0] * normal
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.array([0.0, 0.0, 1.0]) - normal[2] * normal
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(normal, e1)
+
+
+def draw_lamp(profile, seed, lamp):
+    """The :class:`LampDraw` of ``lamp`` (a nominal Lamp), from its own stream."""
+    p = profile.lamps
+    rng = _rng(seed, _TAG_LAMP, lamp.uid)
+    e1, e2 = _wall_axes(lamp.normal)
+    tilt = np.radians(p['normal_tilt_sigma_deg']) * rng.standard_normal(2)
+    normal = lamp.normal + tilt[0] * e1 + tilt[1] * e2
+    normal /= np.linalg.norm(normal)
+    diameter = lamp.diameter_m * (1.0 + p['diameter_sigma'] * rng.standard_normal())
+    brightness = float(np.clip(1.0 + p['brightness_sigma'] * rng.standard_normal(),
+                               *BRIGHTNESS_RANGE))
+    sigma = np.array([p['survey_sigma_plan_m'], p['survey_sigma_plan_m'],
+                      p['survey_sigma_height_m']])
+    error = sigma * rng.standard_normal(3)
+    gross = bool(rng.uniform() < p['gross_error_fraction'])
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    if gross:
+        error = error + p['gross_error_m'] * (np.cos(angle) * e1 + np.sin(angle) * e2)
+    dead = bool(rng.uniform() < p['dead_fraction'])
+    return LampDraw(uid=int(lamp.uid), normal=normal, diameter_m=float(diameter),
+                    brightness=0.0 if dead else brightness, survey_error_m=error,
+                    gross=gross, dead=dead)
+
+
+def draw_line(profile, seed, lamp_map):
+    """(truth LampMap, surveyed LampMap, {uid: LampDraw}) of the nominal ``lamp_map``.
+
+    The true lamps sit at the nominal positions with their drawn normals and diameters;
+    the surveyed map has the nominal normals and diameters, positions + survey error and
+    ``position_sigma_m`` = the profile's survey 1σ. Ideal: the map itself twice, {}.
+    """
+    if profile.ideal:
+        return lamp_map, lamp_map, {}
+    p = profile.lamps
+    sigma = [p['survey_sigma_plan_m'], p['survey_sigma_plan_m'], p['survey_sigma_height_m']]
+    draws, truth, survey = {}, [], []
+    for lamp in lamp_map.lamps:
+        d = draws[lamp.uid] = draw_lamp(profile, seed, lamp)
+        common = {'uid': lamp.uid, 'line_id': lamp.line_id, 'lamp_id': lamp.lamp_id,
+                  'chainage_m': lamp.chainage_m}
+        truth.append(Lamp(position_m=lamp.position_m, normal=d.normal,
+                          diameter_m=d.diameter_m, **common))
+        survey.append(Lamp(position_m=lamp.position_m + d.survey_error_m, normal=lamp.normal,
+                           diameter_m=lamp.diameter_m, position_sigma_m=sigma, **common))
+    return (LampMap(truth, lamp_map.frame_id, lamp_map.alignment),
+            LampMap(survey, lamp_map.frame_id, lamp_map.alignment), draws)
+
+
+# ------------------------------------------------------------------ the installation
+@dataclass
+class Installation:
+    """A drawn installation (see the module docstring); ``lamp_*`` None when drawn
+    without a lamp map.
+    """
+
+    profile: RigProfile
+    seed: int
+    nominal: NominalCamera
+    optics: OpticsTruth
+    row_time_s: float
+    vehicle_truth: VehicleMount
+    vehicle_belief: VehicleMount
+    imu_clock_offset_s: float
+    calibration: StereoCalibration
+    calibration_error: dict
+    lamp_map_truth: LampMap = None
+    lamp_map_belief: LampMap = None
+    lamp_draws: dict = field(default_factory=dict)
+
+    @property
+    def lamp_brightness(self):
+        """((uid, factor), ...) of every lamp whose brightness is not 1 (0 = dead)."""
+        return tuple((uid, d.brightness) for uid, d in sorted(self.lamp_draws.items())
+                     if d.brightness != 1.0)
+
+    def renderer_fields(self):
+        """RendererConfig keyword arguments of the truth (empty for the ideal profile)."""
+        if self.profile.ideal:
+            return {}
+        from vlc_stereo_camera.core.sensor_noise import FixedPatternConfig
+        from vlc_stereo_camera.core.stray_light import StrayLightConfig
+        s = self.profile.sensor
+        return {'optics_truth': self.optics, 'row_time_s': self.row_time_s,
+                'psf_sigma_corner_px': s['psf_sigma_corner_px'],
+                'fixed_pattern': FixedPatternConfig(prnu_rms=s['prnu_rms'],
+                                                    dsnu_rms_e=s['dsnu_rms_e'],
+                                                    row_noise_e=s['row_noise_e'],
+                                                    hot_pixel_fraction=s['hot_pixel_fraction']),
+                'stray_light': StrayLightConfig(reflection_fraction=s['wall_reflection_fraction']),
+                'noise_table_size': 1 << 22,
+                'lamp_brightness': self.lamp_brightness}
+
+    def truth_dict(self):
+        """Every drawn value, for the evaluation (YAML-safe)."""
+        def floats(v):
+            return [float(x) for x in np.ravel(v)]
+        out = {'profile': self.profile.name, 'seed': int(self.seed),
+               'profiles_file': self.profile.source,
+               'nominal_camera': {k: getattr(self.nominal, k) + 0 for k in (
+                   'width', 'height', 'fx', 'fy', 'cx', 'cy', 'baseline_m', 'row_time_s')},
+               'row_time_s': float(self.row_time_s),
+               'imu_clock_offset_s': float(self.imu_clock_offset_s),
+               'vehicle_truth': self.vehicle_truth.to_dict(),
+               'vehicle_belief': self.vehicle_belief.to_dict(),
+               'car_body': self.profile.car_body}
+        if self.optics is not None:
+            o = self.optics
+            out['optics'] = {
+                side: {'fx': cam.fx, 'fy': cam.fy, 'cx': cam.cx, 'cy': cam.cy,
+                       'distortion': floats(cam.distortion)}
+                for side, cam in (('left', o.left), ('right', o.right))}
+            out['optics'].update({'right_rotation_deg': floats(o.right_rotation_deg),
+                                  'right_position_m': floats(o.right_position_m),
+                                  'trigger_skew_s': float(o.trigger_skew_s)})
+        if self.calibration_error:
+            out['calibration_error'] = {k: np.asarray(v).tolist()
+                                        for k, v in self.calibration_error.items()}
+        out['calibration'] = {'stated_rms_px': float(self.calibration.rms_px)
+                              if math.isfinite(self.calibration.rms_px) else None,
+                              'baseline_m': float(self.calibration.baseline_m)}
+        if self.lamp_draws:
+            out['lamps'] = [{'uid': d.uid, 'normal': floats(d.normal),
+                             'diameter_m': d.diameter_m, 'brightness': d.brightness,
+                             'survey_error_m': floats(d.survey_error_m), 'gross': d.gross,
+                             'dead': d.dead} for _, d in sorted(self.lamp_draws.items())]
+            out['dead_lamps'] = [d.uid for _, d in sorted(self.lamp_draws.items()) if d.dead]
+            out['gross_survey_errors'] = [d.uid for _, d in sorted(self.lamp_draws.items())
+                                          if d.gross]
+        return out
+
+    def write(self, out_dir):
+        """Write ``belief/`` (what the receivers get) and ``truth/`` (the evaluation's
+        only) into ``out_dir``; returns {name: path}.
+        """
+        out = pathlib.Path(out_dir)
+        belief, truth = out / 'belief', out / 'truth'
+        belief.mkdir(parents=True, exist_ok=True)
+        truth.mkdir(parents=True, exist_ok=True)
+        tag = f'rig profile {self.profile.name}, seed {self.seed}'
+        paths = {'belief/left.yaml': belief / 'left.yaml',
+                 'belief/right.yaml': belief / 'right.yaml',
+                 'belief/vehicle.yaml': belief / 'vehicle.yaml',
+                 'truth/truth.yaml': truth / 'truth.yaml',
+                 'truth/vehicle.yaml': truth / 'vehicle.yaml',
+                 'truth/left.yaml': truth / 'left.yaml',
+                 'truth/right.yaml': truth / 'right.yaml'}
+        save_ros_stereo(self.calibration, paths['belief/left.yaml'], paths['belief/right.yaml'])
+        self.vehicle_belief.save(paths['belief/vehicle.yaml'],
+                                 f'Vehicle mount as measured ({tag}).')
+        self.vehicle_truth.save(paths['truth/vehicle.yaml'],
+                                f'TRUE vehicle mount ({tag}): for the evaluation only.')
+        if self.optics is not None:
+            pair = self.optics.stereo_model(self.nominal.width, self.nominal.height)
+        else:
+            pair = StereoCameraModel.from_rig(self.nominal.rig())
+        save_ros_stereo(StereoCalibration(pair.left, pair.right,
+                                          camera_name=self.calibration.camera_name),
+                        paths['truth/left.yaml'], paths['truth/right.yaml'])
+        if self.lamp_map_belief is not None:
+            paths['belief/lamp_map.yaml'] = belief / 'lamp_map.yaml'
+            paths['truth/lamp_map.yaml'] = truth / 'lamp_map.yaml'
+            self.lamp_map_belief.save(paths['belief/lamp_map.yaml'],
+                                      f'Surveyed lamp map ({tag}): positions with survey '
+                                      'error,\nposition_sigma_m the survey 1 sigma per axis.')
+            self.lamp_map_truth.save(paths['truth/lamp_map.yaml'],
+                                     f'TRUE lamp map ({tag}): for the evaluation only.')
+        with open(paths['truth/truth.yaml'], 'w', encoding='utf-8') as stream:
+            stream.write(f'# Every drawn value of the installation ({tag}); for the '
+                         'evaluation only:\n# no receiver may read this folder.\n')
+            yaml.safe_dump(self.truth_dict(), stream, sort_keys=False,
+                           default_flow_style=None, width=100)
+        return {k: str(v) for k, v in paths.items()}
+
+
+def draw_installation(profile, seed, vehicle, lamp_map=None, nominal=NominalCamera()):
+    """Draw the :class:`Installation` of ``profile`` (a RigProfile or a name of the
+    shipped file) and ``seed`` on the nominal ``vehicle`` (VehicleMount) and, when given,
+    the nominal ``lamp_map``.
+    """
+    if isinstance(profile, str):
+        profile = load_profile(profile)
+    optics, row_time = draw_optics(profile, seed, nominal)
+    truth, belief, offset = draw_vehicle(profile, seed, vehicle)
+    calibration, error = draw_calibration(profile, seed, optics, nominal,
+                                          camera_name=vehicle.vehicle_id or 'stereo')
+    inst = Installation(profile=profile, seed=int(seed), nominal=nominal, optics=optics,
+                        row_time_s=row_time, vehicle_truth=truth, vehicle_belief=belief,
+                        imu_clock_offset_s=offset, calibration=calibration,
+                        calibration_error=error)
+    if lamp_map is not None:
+        inst.lamp_map_truth, inst.lamp_map_belief, inst.lamp_draws = draw_line(
+            profile, seed, lamp_map)
+    return inst
