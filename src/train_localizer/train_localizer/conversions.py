@@ -139,6 +139,14 @@ class CameraInfoIntrinsics:
         """The kept left and right camera_info (None until one came)."""
         return self.keeper.current
 
+    def offer(self, index, msg, info, warn):
+        """:meth:`update`, and what it says handed to ``warn(text)`` (a warning) or
+        ``info(text)``.
+        """
+        said = self.update(index, msg)
+        if said is not None:
+            (warn if said[0] == 'warn' else info)(said[1])
+
     def update(self, index, msg):
         if not self.enabled:
             return None

@@ -437,13 +437,8 @@ class TrainLocalizerNode(Node):
         self._process(self.joiner.flush(self._now_s()))
 
     def _on_camera_info(self, index, msg):
-        said = self._intrinsics.update(index, msg)
-        if said is not None:
-            level, text = said
-            if level == 'warn':
-                self._warn('camera_info', text)
-            else:
-                self.get_logger().info(text)
+        self._intrinsics.offer(index, msg, self.get_logger().info,
+                               lambda text: self._warn('camera_info', text))
 
     def _process(self, frames):
         for stamp_ns, observations in frames:

@@ -55,13 +55,14 @@ from rcl_interfaces.msg import ParameterType, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CompressedImage, Image
 from std_msgs.msg import Header
 
 from vlc_camera_input import conversions
 from vlc_camera_input.core import sbs
 from vlc_camera_input.core.rectify import Rectifier, rectified_camera_info
+from vlc_common.camera_info import stereo_camera_publishers
 from vlc_common.core.calibration import CalibrationError, load_stereo_calibration
 from vlc_common.parameters import descriptor
 from vlc_common.process import keep_large_buffers, run_node
@@ -176,13 +177,7 @@ class SbsSplitterNode(Node):
         self._warnings = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
-        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_images = [self.create_publisher(Image, f'stereo/{side}/image_raw', image_qos)
-                           for side in ('left', 'right')]
-        self.pub_infos = [self.create_publisher(CameraInfo, f'stereo/{side}/camera_info',
-                                                latched) for side in ('left', 'right')]
+        self.pub_images, self.pub_infos = stereo_camera_publishers(self)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         msg_type, topic = INPUTS[p['input']]
         input_qos = QoSProfile(depth=5, reliability=RELIABILITIES[p['input_reliability']])

@@ -132,3 +132,22 @@ class CameraInfoKeeper:
         if self.current[0] is None or self.current[1] is None:
             return None
         return tuple(self.current)
+
+
+def stereo_camera_publishers(node):
+    """The publishers of a stereo camera, as the receivers subscribe to them:
+    ``stereo/{left,right}/image_raw`` (reliable, keep last 5) and
+    ``stereo/{left,right}/camera_info`` (reliable, transient local, depth 1: latched).
+    Returns ``(image publishers, camera_info publishers)``, left first.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import CameraInfo, Image
+    image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    sides = ('left', 'right')
+    return ([node.create_publisher(Image, f'stereo/{side}/image_raw', image_qos)
+             for side in sides],
+            [node.create_publisher(CameraInfo, f'stereo/{side}/camera_info', latched)
+             for side in sides])
+

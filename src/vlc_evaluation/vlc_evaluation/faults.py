@@ -39,6 +39,7 @@ import numpy as np
 
 from vlc_bags.bagio import open_bag
 from vlc_common.stamps import stamp_to_ns
+from vlc_evaluation.report import replace_marked_block
 
 FAULT_SPEED_KMH = 80.0
 FAULT_AT_S = 6.0          # simulated time of the fault's start (cold start settled)
@@ -563,10 +564,4 @@ def update_docs(markdown_path, results, command, speed_kmh=FAULT_SPEED_KMH):
                f'({time.strftime("%Y-%m-%d %H:%M")}, {os.cpu_count()} cores, load average '
                f'{os.getloadavg()[1]:.1f} over the last 5 min at the end).\n\n'
                f'{text.rstrip()}\n{DOCS_END}')
-    current = markdown_path.read_text(encoding='utf-8')
-    if DOCS_BEGIN in current and DOCS_END in current:
-        head, rest = current.split(DOCS_BEGIN, 1)
-        current = head + section + rest.split(DOCS_END, 1)[1]
-    else:
-        current = current.rstrip('\n') + '\n\n' + section + '\n'
-    markdown_path.write_text(current, encoding='utf-8')
+    replace_marked_block(markdown_path, section, begin=DOCS_BEGIN, end=DOCS_END)

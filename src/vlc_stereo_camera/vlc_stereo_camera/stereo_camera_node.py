@@ -83,11 +83,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import PointCloud2
 
+from vlc_common.camera_info import stereo_camera_publishers
 from vlc_common.core.calibration import load_stereo_calibration
 from vlc_common.core.camera import CameraIntrinsics, StereoRig
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
@@ -295,13 +295,7 @@ class StereoCameraNode(Node):
         self._readout_s = ((cfg.image_height - 1) * renderer_config.row_time_s
                            + cfg.exposure_s)
 
-        image_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_images = [self.create_publisher(Image, f'stereo/{side}/image_raw', image_qos)
-                           for side in ('left', 'right')]
-        self.pub_infos = [self.create_publisher(CameraInfo, f'stereo/{side}/camera_info',
-                                                latched) for side in ('left', 'right')]
+        self.pub_images, self.pub_infos = stereo_camera_publishers(self)
         self.pub_pose = self.create_publisher(PoseStamped, 'ground_truth/pose', 10)
         self.pub_odom = self.create_publisher(Odometry, 'ground_truth/odometry', 10)
         self.pub_spots = self.create_publisher(PointCloud2, 'ground_truth/spots', 10)
