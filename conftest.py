@@ -5,8 +5,12 @@
 * ``ros_env``: an environment for ROS processes isolated on a DDS domain of its own,
   localhost-only discovery and the project's Fast DDS profile (32 MB shared memory).
 * ``launch``: starts an installed executable (``install/lib/<pkg>/<exe>``) in its own
-  process group and stops the group at the end of the test (SIGINT, then SIGKILL).
+  process group and stops the group at the end of the test (SIGINT, then SIGKILL); its
+  ``probe``, ``spin``, ``rig_listened`` and ``open_image_gate`` drive a graph test.
+* ``node_factory``: nodes of a class in-process, in one rclpy context of their own,
+  destroyed at the end of the test.
 """
+import contextlib
 import os
 import pathlib
 import signal
@@ -21,6 +25,8 @@ _SRC = WS / 'src'
 for _pkg in sorted(_SRC.iterdir()):
     if (_pkg / 'package.xml').exists() and str(_pkg) not in sys.path:
         sys.path.insert(0, str(_pkg))
+
+from vlc_common.process import logged_output, start_logged  # noqa: E402
 
 INSTALL_LIB = WS / 'install' / 'lib'
 FASTDDS_PROFILE = WS / 'config' / 'fastdds_localhost_bigshm.xml'
@@ -64,18 +70,12 @@ class _Launcher:
         for name, value in (params or {}).items():
             cmd += ['-p', f'{name}:={_param_text(value)}']
         cmd += list(ros_args)
-        log = open(self.tmp_path / f'{package}.{executable}.{len(self.procs)}.log', 'w+')
-        proc = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        proc.log = log
+        proc = start_logged(cmd, self.tmp_path / f'{package}.{executable}.{len(self.procs)}.log',
+                            self.env)
         self.procs.append(proc)
         return proc
 
-    @staticmethod
-    def output(proc):
-        proc.log.flush()
-        proc.log.seek(0)
-        return proc.log.read()
+    output = staticmethod(logged_output)
 
     def stop(self, proc, timeout=10.0):
         """SIGINT the process group; SIGKILL if it does not exit. Returns the exit code."""
@@ -96,6 +96,51 @@ class _Launcher:
             self.stop(proc)
             proc.log.close()
 
+    @staticmethod
+    @contextlib.contextmanager
+    def probe(name):
+        """A node of this test process (its own rclpy context) and an executor spinning
+        it: ``with launch.probe('graph_test') as (node, executor): ...``.
+        """
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        ctx = rclpy.Context()
+        rclpy.init(context=ctx)
+        node = rclpy.create_node(name, context=ctx)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        try:
+            yield node, executor
+        finally:
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown(context=ctx)
+
+    @staticmethod
+    def spin(executor, seconds, until=None):
+        """Spin ``executor`` for ``seconds`` of wall time, or until ``until()`` is true."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not (until is not None and until()):
+            executor.spin_once(timeout_sec=0.05)
+
+    @staticmethod
+    def rig_listened(node, clock_subscribers=1):
+        """True once the rig's truth is seen and ``clock_subscribers`` nodes (the IMU, ...)
+        and the compensator's localizer listen: the rig's image gate may open.
+        """
+        return (node.count_subscribers('/clock') >= clock_subscribers
+                and node.count_publishers('ground_truth/pose') >= 1
+                and node.count_subscribers('imu/data') >= 1)
+
+    @staticmethod
+    def open_image_gate(node):
+        """Subscribe ``node`` to both images: the rig (``wait_for_subscribers``) starts
+        its simulated time once this third subscriber per image topic is there.
+        """
+        from sensor_msgs.msg import Image
+        for side in ('left', 'right'):
+            node.create_subscription(Image, f'stereo/{side}/image_raw', lambda _: None, 1)
+
 
 def _param_text(value):
     if isinstance(value, bool):
@@ -114,3 +159,28 @@ def launch(ros_env, tmp_path):
         # segments of processes that are gone; Fast DDS cleans live ones itself
         if time.time() - leftover.stat().st_mtime > 60:
             leftover.unlink(missing_ok=True)
+
+
+@pytest.fixture
+def node_factory(ros_env):
+    """``make(NodeClass, **params)``: a node of that class in this process, with those
+    parameter overrides, in one rclpy context shared by the test's nodes; all destroyed
+    and the context shut down at the end of the test.
+    """
+    import rclpy
+    from rclpy.parameter import Parameter
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    nodes = []
+
+    def make(node_class, **params):
+        node = node_class(context=ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in params.items()])
+        nodes.append(node)
+        return node
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+    rclpy.shutdown(context=ctx)
+

@@ -26,6 +26,7 @@ from companion_localizers.core.along_track import FilterSettings
 from companion_localizers.core.ranging import RangingConfig
 from train_localizer import node_parameters as params
 from train_localizer.core.join import FrameJoiner
+from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.throttled_log import ThrottledWarnings
@@ -96,7 +97,7 @@ def common_config_kwargs(p):
                 survey_sigma_m=p['survey_sigma_m'])
 
 
-class ImuFrameNode(Node):
+class ImuFrameNode(JoinedFramesNode, Node):
     """See the module docstring. Subclasses set ``METHOD`` and implement
     :meth:`make_core` and :meth:`extra_diagnostics`.
     """
@@ -188,13 +189,6 @@ class ImuFrameNode(Node):
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._process(self.joiner.add_lamps(stamp, records, self._now_s()))
 
-    def _flush_joiner(self):
-        self._process(self.joiner.flush(self._now_s()))
-
-    def _on_camera_info(self, index, msg):
-        self._intrinsics.offer(index, msg, self.get_logger().info,
-                               lambda text: self._warn('camera_info', text))
-
     def _process(self, frames):
         for stamp_ns, observations in frames:
             with self._join_timer:
@@ -204,12 +198,6 @@ class ImuFrameNode(Node):
         """Hook for the subclass: the results of the frames the core processed."""
 
     # ------------------------------------------------------------------ outputs
-    def _warn(self, code, message):
-        self._warnings.warn(code, message)
-
-    def _now_s(self):
-        return self._steady.now().nanoseconds * 1e-9
-
     def _publish_diagnostics(self):
         c = self.core.counters
         j = self.joiner.stats

@@ -11,8 +11,6 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
-import rclpy
-from rclpy.parameter import Parameter
 from sensor_msgs.msg import Imu
 import yaml
 
@@ -38,25 +36,16 @@ def test_config_file_documents_every_parameter_with_its_default():
 
 
 @pytest.fixture
-def make_node(ros_env):
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    nodes = []
-
+def make_node(node_factory):
     def make(**params):
-        node = CurvatureNode(context=ctx, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()])
+        node = node_factory(CurvatureNode, **params)
         node.poses, node.diags, node.poses_cov = [], [], []
         node._pub_pose.publish = node.poses.append
         node._pub_pose_cov.publish = node.poses_cov.append
         node._pub_diag.publish = node.diags.append
-        nodes.append(node)
         return node
 
-    yield make
-    for node in nodes:
-        node.destroy_node()
-    rclpy.shutdown(context=ctx)
+    return make
 
 
 def _stamp(msg, t):

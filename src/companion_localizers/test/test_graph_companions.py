@@ -23,7 +23,6 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from geometry_msgs.msg import PoseStamped  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 pytestmark = pytest.mark.graph
 
@@ -71,27 +70,15 @@ def test_companion_poses_match_ground_truth(launch, ros_env):
                     dict(rig, clock_tail_s=0.5, duration_s=DURATION_S, wait_for_subscribers=2))
     procs['stereo_camera_node'] = camera
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('companion_graph_test', context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
     received = {topic: [] for topic in BOUNDS}
     truth = []
-    for topic, store in received.items():
-        node.create_subscription(PoseStamped, topic, store.append, 100)
-    node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
-    try:
-        deadline = time.monotonic() + 60.0 + DURATION_S / REALTIME_FACTOR
-        while camera.poll() is None and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        drain_end = time.monotonic() + 3.0
-        while time.monotonic() < drain_end:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+    with launch.probe('companion_graph_test') as (node, executor):
+        for topic, store in received.items():
+            node.create_subscription(PoseStamped, topic, store.append, 100)
+        node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
+        launch.spin(executor, 60.0 + DURATION_S / REALTIME_FACTOR,
+                    until=lambda: camera.poll() is not None)
+        launch.spin(executor, 3.0)
     logs = '\n'.join(f'--- {name}\n{launch.output(p)[-2000:]}' for name, p in procs.items())
     assert camera.returncode == 0, logs
     for name, proc in procs.items():

@@ -15,7 +15,6 @@ or the module behind it is not installed yet.
 """
 import importlib.util
 import pathlib
-import time
 
 import numpy as np
 import pytest
@@ -23,8 +22,6 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import Image  # noqa: E402
 
 pytestmark = pytest.mark.graph
 
@@ -75,35 +72,17 @@ def test_graph_train_pose_matches_ground_truth(launch, ros_env):
                     dict(rig, clock_tail_s=0.5, wait_for_subscribers=3))
     procs['stereo_camera_node'] = camera
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('graph_test', context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
     poses, truth, covs = [], [], []
-    node.create_subscription(PoseStamped, 'train/pose', poses.append, 100)
-    node.create_subscription(PoseWithCovarianceStamped, 'train/pose_with_covariance',
-                             covs.append, 100)
-    node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
-    try:
-        ready = time.monotonic() + 30.0
-        while time.monotonic() < ready and not (
-                node.count_subscribers('/clock') >= 1
-                and node.count_publishers('ground_truth/pose') >= 1
-                and node.count_subscribers('imu/data') >= 1):
-            executor.spin_once(timeout_sec=0.05)
-        for side in ('left', 'right'):
-            node.create_subscription(Image, f'stereo/{side}/image_raw', lambda _: None, 1)
-        deadline = time.monotonic() + 60.0 + DURATION_S / REALTIME_FACTOR
-        while camera.poll() is None and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        drain_end = time.monotonic() + 3.0      # let the pipeline finish the last frames
-        while time.monotonic() < drain_end:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+    with launch.probe('graph_test') as (node, executor):
+        node.create_subscription(PoseStamped, 'train/pose', poses.append, 100)
+        node.create_subscription(PoseWithCovarianceStamped, 'train/pose_with_covariance',
+                                 covs.append, 100)
+        node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
+        launch.spin(executor, 30.0, until=lambda: launch.rig_listened(node))
+        launch.open_image_gate(node)
+        launch.spin(executor, 60.0 + DURATION_S / REALTIME_FACTOR,
+                    until=lambda: camera.poll() is not None)
+        launch.spin(executor, 3.0)      # let the pipeline finish the last frames
     logs = '\n'.join(f'--- {name}\n{launch.output(p)[-3000:]}' for name, p in procs.items())
     assert camera.returncode == 0, logs
     for name, proc in procs.items():

@@ -7,7 +7,7 @@ Subscribes (relative names):
 * ``vlc/lamps`` (sensor_msgs/PointCloud2; reliable, depth 10): lamp UIDs from
   vlc_decoder, same stamps; joined with the spot pairs by stamp
   (:mod:`train_localizer.core.join`);
-* ``imu/data`` (sensor_msgs/Imu; best effort, depth 100): compensated attitude,
+* ``imu/data`` (sensor_msgs/Imu; best effort, depth 1000): compensated attitude,
   rate and specific force from imu_compensator;
 * ``stereo/left/camera_info``, ``stereo/right/camera_info`` (sensor_msgs/CameraInfo;
   reliable, transient local, depth 1): rectified intrinsics and baseline;
@@ -68,6 +68,7 @@ from train_localizer.core.reacquisition import (
     chainage_measurement,
 )
 from train_localizer.core.track import Track
+from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.parameters import descriptor as _desc
@@ -80,8 +81,10 @@ SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
 LAMP_FIELDS = ('uid',)
 
 # Sensor-data QoS (best effort) with a deep queue: at 400 Hz a 5-sample queue loses
-# samples whenever the process stalls for 12 ms (measured under load).
-IMU_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT,
+# samples whenever the process stalls for 12 ms (measured under load), and 100 (0.25 s)
+# lost 0.75 s of the burst in which a stalled IMU caught up, and 0.29 s while this node
+# worked off a stall's backlog of frames: 1000 holds 2.5 s (about 0.4 MB).
+IMU_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT,
                      history=HistoryPolicy.KEEP_LAST)
 
 
@@ -200,7 +203,7 @@ PARAMETERS = (
      + params.STANDSTILL_PARAMETERS + params.JOIN_PARAMETERS)
 
 
-class TrainLocalizerNode(Node):
+class TrainLocalizerNode(JoinedFramesNode, Node):
     """ROS wrapper of :class:`Localizer`; see the module docstring."""
 
     def __init__(self, **kwargs):
@@ -433,13 +436,6 @@ class TrainLocalizerNode(Node):
             self._warn('curvature_gate', f'curvature match rejected: {rec.offset_m:+.1f} m from '
                        f'the state (d2 {rec.d2:.0f})')
 
-    def _flush_joiner(self):
-        self._process(self.joiner.flush(self._now_s()))
-
-    def _on_camera_info(self, index, msg):
-        self._intrinsics.offer(index, msg, self.get_logger().info,
-                               lambda text: self._warn('camera_info', text))
-
     def _process(self, frames):
         for stamp_ns, observations in frames:
             start = time.perf_counter()
@@ -500,12 +496,6 @@ class TrainLocalizerNode(Node):
             self.get_logger().error(event.message)
         else:
             self._warn(event.code, event.message)
-
-    def _warn(self, code, message):
-        self._warnings.warn(code, message)
-
-    def _now_s(self):
-        return self._steady.now().nanoseconds * 1e-9
 
     def _publish_diagnostics(self):
         state, level, message, sigma = self.localizer.status()

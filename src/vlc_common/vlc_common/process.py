@@ -3,6 +3,7 @@ import ctypes
 import gc
 import os
 import signal
+import subprocess
 
 # glibc mallopt() parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -180,3 +181,22 @@ def spin_until_finished(node):
     import rclpy
     spin_until_shutdown(lambda: rclpy.spin_until_future_complete(node, node.finished))
     return node.finished.result() if node.finished.done() else 0
+
+
+def start_logged(cmd, log_path, env=None):
+    """``subprocess.Popen(cmd)`` in a session (process group) of its own, stdout and
+    stderr into the file ``log_path``, kept open as ``proc.log`` (:func:`logged_output`).
+    """
+    log = open(log_path, 'w+')
+    proc = subprocess.Popen([str(c) for c in cmd], env=env, stdout=log,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def logged_output(proc):
+    """Everything a process started by :func:`start_logged` has written so far."""
+    proc.log.flush()
+    proc.log.seek(0)
+    return proc.log.read()
+

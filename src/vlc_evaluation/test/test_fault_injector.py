@@ -8,7 +8,6 @@ Every node stays alive and exits 0 at SIGINT; the localizer publishes poses thro
 receivers warned (throttled) about the bad input; no node reset its timeline; the
 injector published every kind.
 """
-import time
 
 import numpy as np
 import pytest
@@ -17,8 +16,6 @@ rclpy = pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import Image  # noqa: E402
 
 from vlc_evaluation.fault_kinds import ALL_KINDS  # noqa: E402
 
@@ -55,43 +52,25 @@ def test_the_graph_survives_every_malformed_kind(launch, ros_env):
     camera = launch('vlc_stereo_camera', 'stereo_camera_node',
                     dict(rig, clock_tail_s=0.5, wait_for_subscribers=3))
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('fault_test', context=ctx)
-    executor = SingleThreadedExecutor(context=ctx)
-    executor.add_node(node)
     poses, covs, truth, diagnostics = [], [], [], {}
 
     def on_diagnostics(msg):
         for status in msg.status:
             diagnostics[status.name.split(':')[0]] = {kv.key: kv.value for kv in status.values}
 
-    node.create_subscription(PoseStamped, 'train/pose', poses.append, 100)
-    node.create_subscription(PoseWithCovarianceStamped, 'train/pose_with_covariance',
-                             covs.append, 100)
-    node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
-    node.create_subscription(DiagnosticArray, 'diagnostics', on_diagnostics, 50)
-    try:
+    with launch.probe('fault_test') as (node, executor):
+        node.create_subscription(PoseStamped, 'train/pose', poses.append, 100)
+        node.create_subscription(PoseWithCovarianceStamped, 'train/pose_with_covariance',
+                                 covs.append, 100)
+        node.create_subscription(PoseStamped, 'ground_truth/pose', truth.append, 100)
+        node.create_subscription(DiagnosticArray, 'diagnostics', on_diagnostics, 50)
         # the image gate (this test's third image subscriber) opens once the IMU and the
         # injector listen to /clock and the camera's truth is seen (test_graph_localizer)
-        ready = time.monotonic() + 30.0
-        while time.monotonic() < ready and not (
-                node.count_subscribers('/clock') >= 2
-                and node.count_publishers('ground_truth/pose') >= 1
-                and node.count_subscribers('imu/data') >= 1):
-            executor.spin_once(timeout_sec=0.05)
-        for side in ('left', 'right'):
-            node.create_subscription(Image, f'stereo/{side}/image_raw', lambda _: None, 1)
-        deadline = time.monotonic() + 40.0 + DURATION_S / REALTIME_FACTOR
-        while camera.poll() is None and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
-        drain_end = time.monotonic() + 2.0
-        while time.monotonic() < drain_end:
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        launch.spin(executor, 30.0, until=lambda: launch.rig_listened(node, 2))
+        launch.open_image_gate(node)
+        launch.spin(executor, 40.0 + DURATION_S / REALTIME_FACTOR,
+                    until=lambda: camera.poll() is not None)
+        launch.spin(executor, 2.0)
 
     alive = {name: p.poll() is None for name, p in procs.items()}
     codes = {name: launch.stop(p) for name, p in procs.items()}

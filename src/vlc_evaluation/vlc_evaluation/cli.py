@@ -165,6 +165,10 @@ def main(argv=None):
                         help="a drawn profile's belief calibration: drawn (the truth "
                              'perturbed by a calibration\'s errors) or checkerboard (an '
                              'actual calibration of the true lenses, ~10 s per scenario)')
+    parser.add_argument('--profile-docs', nargs='+', default=[],
+                        help='a drawn --rig-profile: also write its summary beside the main '
+                             "evaluation's (docs/evaluation/report.json) and the paper's "
+                             'between the profiles markers of these Markdown files')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -285,6 +289,9 @@ def main(argv=None):
                                   'lanes': args.lanes, 'wall_s': round(wall, 1),
                                   'cpus': os.cpu_count(),
                                   'finished': time.strftime('%Y-%m-%d %H:%M')}) + '\n')
+    for path in args.profile_docs:
+        report.update_profile_docs(path, out, args.rig_profile, command)
+        print(f'{path}: rig profile section rewritten')
     if args.readme:
         report.update_markdown(pathlib.Path(args.readme), out, command)
         print(f'{args.readme}: evaluation section rewritten')

@@ -10,7 +10,6 @@ import pytest
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 import yaml
@@ -66,26 +65,17 @@ def test_config_file_documents_every_parameter_with_its_default():
 # --- the node in-process (its publisher replaced by a list) -----------------------------
 
 @pytest.fixture
-def make_node(ros_env):
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    nodes = []
-
+def make_node(node_factory):
     def make(**params):
         params.setdefault('follow_clock', False)    # self-paced unless a test gives /clock
-        node = Adis16488Node(context=ctx, parameter_overrides=[
-            Parameter(k, value=v) for k, v in params.items()])
+        node = node_factory(Adis16488Node, **params)
         node.sent, node.diag_sent = [], []
         # The node refills one message per sample: keep copies.
         node._imu_pub.publish = lambda msg: node.sent.append(copy.deepcopy(msg))
         node._diag_pub.publish = node.diag_sent.append
-        nodes.append(node)
         return node
 
-    yield make
-    for node in nodes:
-        node.destroy_node()
-    rclpy.shutdown(context=ctx)
+    return make
 
 
 def _run(node, ticks):

@@ -354,25 +354,16 @@ def test_rig_yaml_documents_the_alignment_parameter():
 
 
 @pytest.fixture
-def imu_node(ros_env):
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    nodes = []
-
+def imu_node(node_factory):
     def make(**params):
         params.setdefault('follow_clock', False)    # self-paced: no camera /clock here
-        node = Adis16488Node(context=ctx, parameter_overrides=[
-            Parameter(k, value=val) for k, val in params.items()])
+        node = node_factory(Adis16488Node, **params)
         node.sent = []
         node._imu_pub.publish = lambda msg: node.sent.append(copy.deepcopy(msg))
         node._diag_pub.publish = lambda msg: None
-        nodes.append(node)
         return node
 
-    yield make
-    for node in nodes:
-        node.destroy_node()
-    rclpy.shutdown(context=ctx)
+    return make
 
 
 def _canted_arc_imu(v, radius_m, cant_rad, grade):

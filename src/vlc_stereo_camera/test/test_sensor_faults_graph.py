@@ -120,8 +120,11 @@ def _start_imu_then_camera(launch, probe, imu_params, camera_params):
     for side in ('left', 'right'):
         if side not in probe.got:
             probe.subscribe(side, Image, f'stereo/{side}/image_raw', RELIABLE)
+    # its clock starts once the IMU (and the probe, if it listens) matched /clock too
     camera = launch('vlc_stereo_camera', 'stereo_camera_node',
-                    params={**SMALL_CAMERA, 'wait_for_subscribers': 1, **camera_params})
+                    params={**SMALL_CAMERA, 'wait_for_subscribers': 1,
+                            'wait_for_clock_subscribers': 1 + ('clock' in probe.got),
+                            **camera_params})
     return imu, camera
 
 

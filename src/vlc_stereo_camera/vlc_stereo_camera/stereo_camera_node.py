@@ -26,7 +26,9 @@ read out (t0 + (H−1)·row_time + exposure). The executor thread only serves th
 diagnostics timer and the shutdown guard condition, so it stays responsive.
 With ``duration_s`` > 0 the node publishes every frame and tick with t < duration_s and
 exits 0. With ``wait_for_subscribers`` N > 0, simulated time starts only when both image
-topics have N subscribers (recordings and tests that need frame 0). Invalid parameters
+topics have N subscribers (recordings and tests that need frame 0), and with
+``wait_for_clock_subscribers`` M > 0 until ``/clock`` has M matched subscribers (an IMU
+following it would otherwise miss the start). Invalid parameters
 fail at start-up with a message and exit code 2. OpenCV runs single-threaded
 (``cv2.setNumThreads(1)``): the renderer is sized for one core, and the other nodes of
 the graph need the rest.
@@ -168,6 +170,9 @@ NODE_PARAMETERS = (
     ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until both image topics '
                                       'have this many subscribers (0 = start at once).',
                                       0, 100, integer=True)),
+    ('wait_for_clock_subscribers', 0, _desc('Also hold it until /clock has this many '
+                                            'matched subscribers (the IMU following it).',
+                                            0, 100, integer=True)),
 )
 
 
@@ -214,6 +219,7 @@ class StereoCameraNodeConfig:
     clock_rate_hz: float
     clock_tail_s: float
     wait_for_subscribers: int
+    wait_for_clock_subscribers: int
 
     def nominal_camera(self):
         """The stereo camera as designed (an installation's nominal)."""
@@ -392,9 +398,11 @@ class StereoCameraNode(Node):
         """Publish clock ticks and frames in simulated-time order at the pacing rate."""
         cfg = self.config
         rtf = cfg.realtime_factor
-        while (not self._stop.is_set() and min(
-                pub.get_subscription_count() for pub in self.pub_images)
-                < cfg.wait_for_subscribers):
+        while not self._stop.is_set() and (
+                min(pub.get_subscription_count() for pub in self.pub_images)
+                < cfg.wait_for_subscribers
+                or (self.pub_clock is not None and self.pub_clock.get_subscription_count()
+                    < cfg.wait_for_clock_subscribers)):
             self._stop.wait(0.05)
         wall0 = time.monotonic()
         tick = 0

@@ -58,6 +58,8 @@ import time
 
 import numpy as np
 
+from vlc_common.process import logged_output, start_logged
+
 SENSOR, PROCESSING = 'sensor', 'processing'
 SUBNET = '10.77.0'
 ADDRESSES = {SENSOR: f'{SUBNET}.1', PROCESSING: f'{SUBNET}.2'}
@@ -359,19 +361,13 @@ class TwoHosts:
     # -------------------------------------------------------------- processes
     def start(self, host, cmd, env, name):
         """Start ``cmd`` in ``host``'s namespace (own process group, log in log_dir)."""
-        log = open(self.log_dir / f'{name}.log', 'w+')
-        proc = subprocess.Popen(['ip', 'netns', 'exec', self.ns[host], *map(str, cmd)],
-                                env=env, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        proc.log, proc.name, proc.host = log, name, host
+        proc = start_logged(['ip', 'netns', 'exec', self.ns[host], *cmd],
+                            self.log_dir / f'{name}.log', env)
+        proc.name, proc.host = name, host
         self.procs.append(proc)
         return proc
 
-    @staticmethod
-    def output(proc):
-        proc.log.flush()
-        proc.log.seek(0)
-        return proc.log.read()
+    output = staticmethod(logged_output)
 
     def note_shared_memory(self):
         """Record the Fast DDS shared-memory files any live process of the run maps."""
