@@ -109,6 +109,16 @@ PARAMETERS = (
     ('use_kalman', True, _desc('Kalman fusion with the IMU; false = raw single-frame fixes.')),
     ('lamp_position_sigma_m', 0.005, _desc('1-sigma survey error per lamp coordinate, m.',
                                            0.0, 1.0)),
+    ('stereo_scale_sigma', 0.001, _desc('Relative 1-sigma of the calibrated stereo scale '
+                                        'fx*baseline (systematic: every range scales).',
+                                        0.0, 0.1)),
+    ('focal_length_sigma', 0.001, _desc('Relative 1-sigma of the calibrated focal length at a '
+                                        'fixed fx*baseline (systematic).', 0.0, 0.1)),
+    ('principal_point_sigma_px', 0.5, _desc('1-sigma of the calibrated principal point cx, cy, '
+                                            'px (systematic).', 0.0, 100.0)),
+    ('mount_angle_sigma_deg', [0.05, 0.1, 0.1],
+     _desc('1-sigma of the calibrated camera mount angles about base_link x, y, z (roll, '
+           'pitch, yaw), deg (systematic).')),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
@@ -293,10 +303,18 @@ class TrainLocalizerNode(Node):
     def _config(p):
         mount = params.load_mount(p)
         geometry = params.rig_geometry(p, mount)
+        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg',
+                     'mount_angle_sigma_deg'):
+            if len(p[name]) != 3:
+                raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
         fix = FixConfig(use_range_constraint=p['use_range_constraint'],
                         track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
                         track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
                         lamp_position_sigma_m=p['lamp_position_sigma_m'],
+                        stereo_scale_sigma=p['stereo_scale_sigma'],
+                        focal_length_sigma=p['focal_length_sigma'],
+                        principal_point_sigma_px=p['principal_point_sigma_px'],
+                        mount_angle_sigma_rad=tuple(v * _DEG for v in p['mount_angle_sigma_deg']),
                         min_disparity_px=p['min_disparity_px'],
                         attitude_weight_inflation=p['attitude_weight_inflation'])
         kalman = params.kalman_config(p, unknown_accel_sigma_mps2=p['unknown_accel_sigma_mps2'])
@@ -311,9 +329,6 @@ class TrainLocalizerNode(Node):
             coast_warn_s=p['coast_warn_s'], max_sigma_m=p['max_sigma_m'],
             report_hold_s=p['report_hold_s'])
         standstill = params.standstill_config(p)
-        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg'):
-            if len(p[name]) != 3:
-                raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
         return LocalizerConfig(
             geometry=geometry, fix=fix, kalman=kalman, integrity=integrity,
             standstill=standstill, use_imu_attitude=p['use_imu_attitude'],

@@ -34,6 +34,7 @@ from train_localizer.core.fix import (
     RigGeometry,
     compute_fix,
     exp_so3,
+    lamp_sigma,
     measurement_time_ns,
     triangulate,
     vision_attitude,
@@ -316,8 +317,9 @@ class Localizer:
         return st, level, msg, sigma
 
     def _extra_var(self):
-        """Published chainage variance beyond the filter's: the last fix's systematic part
-        and the contradiction of a confirmed lamp not yet resolved, m².
+        """Published chainage variance beyond the filter's: the systematic part the state
+        carries (:meth:`_blend_systematic`) and the contradiction of a confirmed lamp not
+        yet resolved, m².
         """
         return self._systematic_var + self.monitor.suspicion_var_m2()
 
@@ -635,7 +637,7 @@ class Localizer:
         """(FixResult, geometry_ok) of a prepared observation explained by ``lamp``."""
         cfg = self.config
         fix = compute_fix(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R, prep.cov_att,
-                          cfg.geometry, cfg.fix)
+                          cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
         geometry_ok = not (fix.chi2_geometry > cfg.integrity.geometry_gate_chi2)
         return fix, geometry_ok
 
@@ -731,7 +733,7 @@ class Localizer:
         if self._last_aid_ns is not None and abs(prep.t_ns - self._last_aid_ns) < period * NS_PER_S:
             return
         dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
-                                      cfg.geometry, cfg.fix)
+                                      cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
         cov = 0.5 * (cov + cov.T)
         if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
                 and np.all(np.linalg.eigvalsh(cov) > 0.0)):
@@ -801,11 +803,31 @@ class Localizer:
         return lamp, fix, d2, why
 
     def _apply_fix(self, t_m, fix):
+        self._blend_systematic(t_m, fix)
         i = self._insert_step(t_m)
         self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
-        self._systematic_var = fix.var_systematic_m2
         self._has_fix = True
         self._gate.fix_pending = self.config.publish_on_fix
+
+    def _blend_systematic(self, t_m, fix):
+        """The systematic variance the state carries after a fix at ``t_m``.
+
+        A fix moves the chainage by its gain k = P/(P + r): the state's systematic error
+        becomes (1 − k)·(its own) + k·(the fix's). The errors of successive fixes are
+        correlated (one calibration, one lamp seen in many frames), so their 1σ add
+        linearly, the bound for any correlation: a blend of far lamps (stereo scale
+        × range) stays that large after a near lamp, and no number of frames of one lamp
+        brings it below that lamp's survey error.
+        """
+        state = self._steps.state_at(t_m) if self._steps.t else None
+        if state is None:
+            self._systematic_var = fix.var_systematic_m2
+            return
+        p = float(state.P[0, 0])
+        k = p / (p + fix.var_m2) if p + fix.var_m2 > 0.0 else 1.0
+        sigma = ((1.0 - k) * math.sqrt(self._systematic_var)
+                 + k * math.sqrt(max(fix.var_systematic_m2, 0.0)))
+        self._systematic_var = sigma * sigma
 
     def _try_initialise(self, prep, lamp, report):
         """Cold start: wait for a confirmed lamp, then start from its recent track."""
