@@ -119,6 +119,9 @@ PARAMETERS = (
     ('mount_angle_sigma_deg', [0.05, 0.1, 0.1],
      _desc('1-sigma of the calibrated camera mount angles about base_link x, y, z (roll, '
            'pitch, yaw), deg (systematic).')),
+    ('systematic_weight_inflation', 3.0, _desc('Factor on each fix\'s systematic variance '
+                                               'in the filter update (shared by consecutive '
+                                               'fixes); 1 = white.', 1.0, 1000.0)),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
@@ -344,6 +347,7 @@ class TrainLocalizerNode(Node):
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(float(v) for v in mount.imu.position_m),
             tilt_leak_time_s=p['tilt_leak_time_s'],
+            systematic_weight_inflation=p['systematic_weight_inflation'],
             attitude_aiding_period_s=p['attitude_aiding_period_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],

@@ -131,6 +131,10 @@ class LocalizerConfig:
     tilt_leak_time_s : float
         Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
         ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
+    systematic_weight_inflation : float
+        Factor on each fix's systematic variance in the filter update (not in the gate,
+        not in the published covariance): the systematic error is shared by consecutive
+        fixes, so each must not count as an independent measurement of it. 1 = white.
     imu_lever_arm_m : tuple of 3 floats
         Position of the IMU in ``base_link``, m: its rotational accelerations are
         removed before the specific force is used.
@@ -169,6 +173,7 @@ class LocalizerConfig:
     attitude_distrust_s: float = 2.0
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
+    systematic_weight_inflation: float = 3.0
     attitude_aiding_period_s: float = 0.2
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
@@ -181,7 +186,7 @@ class LocalizerConfig:
                      'attitude_plausible_rad', 'attitude_distrust_s',
                      'backward_reset_s', 'imu_backward_s', 'blind_gap_s', 'clock_tolerance_s',
                      'initial_chainage_sigma_m', 'max_speed_mps',
-                     'init_lookback_s'):
+                     'init_lookback_s', 'systematic_weight_inflation'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
@@ -805,9 +810,18 @@ class Localizer:
     def _apply_fix(self, t_m, fix):
         self._blend_systematic(t_m, fix)
         i = self._insert_step(t_m)
-        self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
+        self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, self._update_var(fix)))
         self._has_fix = True
         self._gate.fix_pending = self.config.publish_on_fix
+
+    def _update_var(self, fix):
+        """Variance a fix is given in the filter update, m²: its random part plus its
+        systematic part times ``systematic_weight_inflation``. Consecutive fixes share
+        the systematic error (one lamp's survey, one calibration), so N frames carry its
+        information once, not N times; weighting it as larger keeps a bias that changes
+        with the range (stereo scale, mount angles) from being read as speed.
+        """
+        return fix.var_random_m2 + self.config.systematic_weight_inflation * fix.var_systematic_m2
 
     def _blend_systematic(self, t_m, fix):
         """The systematic variance the state carries after a fix at ``t_m``.
@@ -824,7 +838,8 @@ class Localizer:
             self._systematic_var = fix.var_systematic_m2
             return
         p = float(state.P[0, 0])
-        k = p / (p + fix.var_m2) if p + fix.var_m2 > 0.0 else 1.0
+        r = self._update_var(fix)
+        k = p / (p + r) if p + r > 0.0 else 1.0
         sigma = ((1.0 - k) * math.sqrt(self._systematic_var)
                  + k * math.sqrt(max(fix.var_systematic_m2, 0.0)))
         self._systematic_var = sigma * sigma
