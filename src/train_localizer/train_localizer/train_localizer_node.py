@@ -223,6 +223,14 @@ class TrainLocalizerNode(Node):
         p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
         self.params = p
         self.lamp_map, self.localizer_config = self.setup(p)
+        fix = self.localizer_config.fix
+        self._calibration_text = (
+            f'stereo scale {fix.stereo_scale_sigma:.2%}, focal {fix.focal_length_sigma:.2%}, '
+            f'principal point {fix.principal_point_sigma_px:.2f} px, mount '
+            + '/'.join(f'{math.degrees(v):.3f}' for v in fix.mount_angle_sigma_rad)
+            + f' deg; survey {sum(lamp.has_position_sigma for lamp in self.lamp_map.lamps)}/'
+            f'{len(self.lamp_map)} lamps with their own sigma, else '
+            f'{fix.lamp_position_sigma_m * 1000:.1f} mm')
         path = resolve_lamp_map_path(p['lamp_map_path'], p['alignment'] or 'straight')
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
         self.curvature_aid = ChainageAid(self.localizer, self.reacquisition_config(p))
@@ -538,6 +546,8 @@ class TrainLocalizerNode(Node):
         values = {
             'integrity_state': state.value,
             'chainage_sigma_m': f'{sigma:.4f}',
+            'chainage_sigma_systematic_m': f'{self.localizer.systematic_sigma_m:.4f}',
+            'calibration_sigma': self._calibration_text,
             'poses_published': self._published,
             'fixes_accepted': c.fixes_accepted,
             'fixes_unconfirmed_used': c.fixes_unconfirmed_used,

@@ -306,6 +306,13 @@ class Localizer:
         self._gate.fix_pending = self.config.publish_on_fix
         return True
 
+    @property
+    def systematic_sigma_m(self):
+        """1σ of the systematic error the state carries (survey, calibration, attitude;
+        part of the published chainage σ), m.
+        """
+        return math.sqrt(self._systematic_var)
+
     def status(self):
         """(IntegrityState, Level, message, published chainage 1σ in m or NaN)."""
         state = self.current_state()
