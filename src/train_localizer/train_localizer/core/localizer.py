@@ -132,9 +132,9 @@ class LocalizerConfig:
         Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
         ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
     systematic_weight_inflation : float
-        Factor on each fix's systematic variance in the filter update (not in the gate,
-        not in the published covariance): the systematic error is shared by consecutive
-        fixes, so each must not count as an independent measurement of it. 1 = white.
+        Factor on each fix's systematic variance in the filter update (the gate uses the
+        plain sum): the systematic error is shared by consecutive fixes, so each must not
+        count as an independent measurement of it. 1 = white.
     imu_lever_arm_m : tuple of 3 floats
         Position of the IMU in ``base_link``, m: its rotational accelerations are
         removed before the specific force is used.
