@@ -1,4 +1,5 @@
 """Triangulation and fix geometry against the rig's own projection (the truth)."""
+import copy
 import math
 
 import numpy as np
@@ -9,6 +10,7 @@ from train_localizer.core.fix import (
     RigGeometry,
     constrained_fix,
     exp_so3,
+    lamp_sigma,
     measurement_time_ns,
     paper_fix,
     triangulate,
@@ -133,7 +135,9 @@ def test_constrained_fix_estimates_a_large_attitude_error(dx, err_deg):
 def test_constrained_fix_variance_matches_its_scatter(dx):
     R = np.eye(3)
     base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    # pixel noise alone: the calibration taken as exact
     cfg = FixConfig(track_sigma_yz_m=(1e-9, 1e-9), lamp_position_sigma_m=1e-9)
+    cfg = cfg.without_calibration()
     rng = np.random.default_rng(11)
     cov_att = np.eye(3) * 1e-14
     est, var = [], []
@@ -188,3 +192,67 @@ def test_vision_attitude_recovers_the_attitude_without_the_imu_prior(dx, err_deg
     # the tilt is not made worse than the IMU's own (the unseen share stays where it was)
     assert np.abs(e[:2]).max() <= np.abs(delta[:2]).max() + 1.0 * DEG
     assert 1.0 / np.sqrt(np.linalg.inv(cov_att)[2, 2]) < 0.3 * DEG
+
+
+def believed_geometry(rng, cfg):
+    """The rig as a calibration with ``cfg``'s uncertainty describes it: one draw of its
+    stereo scale, focal length, principal point and mount angles around the truth.
+    """
+    k = RIG.intrinsics
+    scale = 1.0 + rng.normal(0.0, cfg.stereo_scale_sigma)
+    focal = 1.0 + rng.normal(0.0, cfg.focal_length_sigma)
+    mount = rng.normal(0.0, 1.0, 3) * np.asarray(cfg.mount_angle_sigma_rad)
+    return RigGeometry(fx=k.fx * focal, fy=k.fy * focal,
+                       cx=k.cx + rng.normal(0.0, cfg.principal_point_sigma_px),
+                       cy=k.cy + rng.normal(0.0, cfg.principal_point_sigma_px),
+                       baseline_m=RIG.baseline_m * scale / focal,
+                       t_base_cam=RIG.cam_positions_base()[0],
+                       R_base_cam=exp_so3(mount) @ RIG.R_base_cam)
+
+
+@pytest.mark.parametrize('dx', [1.5, 5.0, 8.5])
+def test_calibration_errors_match_the_fix_systematic_variance(dx):
+    """Noise-free spots read through calibrations drawn with the configured σ (3× the
+    defaults, so they dominate): the fixes scatter as their systematic variance says;
+    with the calibration taken as exact the fix claims almost nothing.
+    """
+    defaults = FixConfig()
+    cfg = FixConfig(track_sigma_yz_m=(1e-9, 1e-9), lamp_position_sigma_m=1e-9,
+                    stereo_scale_sigma=3.0 * defaults.stereo_scale_sigma,
+                    focal_length_sigma=3.0 * defaults.focal_length_sigma,
+                    principal_point_sigma_px=3.0 * defaults.principal_point_sigma_px,
+                    mount_angle_sigma_rad=tuple(3.0 * v for v in defaults.mount_angle_sigma_rad))
+    R = rpy_to_matrix(0.002, -0.001, 0.01)
+    base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    obs = observe(base, R)
+    cov_att = np.eye(3) * 1e-14
+    rng = np.random.default_rng(int(dx * 10))
+    err, var_sys, var_exact = [], [], []
+    for _ in range(800):
+        geometry = believed_geometry(rng, cfg)
+        p_cam, cov = triangulate(obs, geometry)
+        fix = constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, geometry, cfg)
+        err.append(fix.chainage_m - base[0])
+        var_sys.append(fix.var_systematic_m2)
+        var_exact.append(constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, geometry,
+                                         cfg.without_calibration()).var_m2)
+    rms = math.sqrt(np.mean(np.square(err)))
+    assert rms == pytest.approx(math.sqrt(np.mean(var_sys)), rel=0.1)
+    assert math.sqrt(np.mean(var_exact)) < 0.5 * rms
+
+
+def test_a_lamp_map_sigma_replaces_the_configured_survey_sigma():
+    base = np.array([LAMP.position_m[0] - 4.0, 0.0, 0.0])
+    p_cam, cov = triangulate(observe(base, np.eye(3)), GEOM)
+    cfg = FixConfig().without_calibration()
+    att = np.eye(3) * 1e-14
+    default = constrained_fix(p_cam, cov, LAMP.position_m, np.eye(3), att, GEOM, cfg)
+    lamp = copy.copy(LAMP)
+    lamp.position_sigma_m = np.array([0.05, np.nan, np.nan])   # a poorly surveyed x
+    own = constrained_fix(p_cam, cov, LAMP.position_m, np.eye(3), att, GEOM, cfg,
+                          lamp_sigma(lamp, cfg))
+    np.testing.assert_allclose(lamp_sigma(lamp, cfg), [0.05, 0.005, 0.005])
+    np.testing.assert_allclose(lamp_sigma(LAMP, cfg), [0.005] * 3)
+    assert own.var_systematic_m2 > default.var_systematic_m2 + 0.5 * 0.05 ** 2
+    pf = paper_fix(p_cam, cov, LAMP.position_m, np.eye(3), att, GEOM, cfg, [0.05, 0.0, 0.0])
+    assert pf.var_systematic_m2 == pytest.approx(0.05 ** 2, rel=0.01)

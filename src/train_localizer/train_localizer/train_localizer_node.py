@@ -112,6 +112,19 @@ PARAMETERS = (
     ('use_kalman', True, _desc('Kalman fusion with the IMU; false = raw single-frame fixes.')),
     ('lamp_position_sigma_m', 0.005, _desc('1-sigma survey error per lamp coordinate, m.',
                                            0.0, 1.0)),
+    ('stereo_scale_sigma', 0.001, _desc('Relative 1-sigma of the calibrated stereo scale '
+                                        'fx*baseline (systematic: every range scales).',
+                                        0.0, 0.1)),
+    ('focal_length_sigma', 0.001, _desc('Relative 1-sigma of the calibrated focal length at a '
+                                        'fixed fx*baseline (systematic).', 0.0, 0.1)),
+    ('principal_point_sigma_px', 0.5, _desc('1-sigma of the calibrated principal point cx, cy, '
+                                            'px (systematic).', 0.0, 100.0)),
+    ('mount_angle_sigma_deg', [0.05, 0.1, 0.1],
+     _desc('1-sigma of the calibrated camera mount angles about base_link x, y, z (roll, '
+           'pitch, yaw), deg (systematic).')),
+    ('systematic_weight_inflation', 3.0, _desc('Factor on each fix\'s systematic variance '
+                                               'in the filter update (shared by consecutive '
+                                               'fixes); 1 = white.', 1.0, 1000.0)),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
@@ -213,6 +226,14 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
         self.params = p
         self.lamp_map, self.localizer_config = self.setup(p)
+        fix = self.localizer_config.fix
+        self._calibration_text = (
+            f'stereo scale {fix.stereo_scale_sigma:.2%}, focal {fix.focal_length_sigma:.2%}, '
+            f'principal point {fix.principal_point_sigma_px:.2f} px, mount '
+            + '/'.join(f'{math.degrees(v):.3f}' for v in fix.mount_angle_sigma_rad)
+            + f' deg; survey {sum(lamp.has_position_sigma for lamp in self.lamp_map.lamps)}/'
+            f'{len(self.lamp_map)} lamps with their own sigma, else '
+            f'{fix.lamp_position_sigma_m * 1000:.1f} mm')
         path = resolve_lamp_map_path(p['lamp_map_path'], p['alignment'] or 'straight')
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
         self.curvature_aid = ChainageAid(self.localizer, self.reacquisition_config(p))
@@ -296,10 +317,18 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
     def _config(p):
         mount = params.load_mount(p)
         geometry = params.rig_geometry(p, mount)
+        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg',
+                     'mount_angle_sigma_deg'):
+            if len(p[name]) != 3:
+                raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
         fix = FixConfig(use_range_constraint=p['use_range_constraint'],
                         track_sigma_yz_m=(p['track_sigma_y_m'], p['track_sigma_z_m']),
                         track_offset_yz_m=(p['track_offset_y_m'], p['track_offset_z_m']),
                         lamp_position_sigma_m=p['lamp_position_sigma_m'],
+                        stereo_scale_sigma=p['stereo_scale_sigma'],
+                        focal_length_sigma=p['focal_length_sigma'],
+                        principal_point_sigma_px=p['principal_point_sigma_px'],
+                        mount_angle_sigma_rad=tuple(v * _DEG for v in p['mount_angle_sigma_deg']),
                         min_disparity_px=p['min_disparity_px'],
                         attitude_weight_inflation=p['attitude_weight_inflation'])
         kalman = params.kalman_config(p, unknown_accel_sigma_mps2=p['unknown_accel_sigma_mps2'])
@@ -314,9 +343,6 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             coast_warn_s=p['coast_warn_s'], max_sigma_m=p['max_sigma_m'],
             report_hold_s=p['report_hold_s'])
         standstill = params.standstill_config(p)
-        for name in ('attitude_sigma_floor_deg', 'attitude_sigma_unknown_deg'):
-            if len(p[name]) != 3:
-                raise ValueError(f'{name} needs 3 values, got {list(p[name])}')
         return LocalizerConfig(
             geometry=geometry, fix=fix, kalman=kalman, integrity=integrity,
             standstill=standstill, use_imu_attitude=p['use_imu_attitude'],
@@ -332,6 +358,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(float(v) for v in mount.imu.position_m),
             tilt_leak_time_s=p['tilt_leak_time_s'],
+            systematic_weight_inflation=p['systematic_weight_inflation'],
             attitude_aiding_period_s=p['attitude_aiding_period_s'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
@@ -504,6 +531,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         values = {
             'integrity_state': state.value,
             'chainage_sigma_m': f'{sigma:.4f}',
+            'chainage_sigma_systematic_m': f'{self.localizer.systematic_sigma_m:.4f}',
+            'calibration_sigma': self._calibration_text,
             'poses_published': self._published,
             'fixes_accepted': c.fixes_accepted,
             'fixes_unconfirmed_used': c.fixes_unconfirmed_used,

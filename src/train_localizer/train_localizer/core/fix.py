@@ -26,11 +26,13 @@ Two fixes are offered:
   wrong stereo match or a lamp off its surveyed place.
 
 Every fix splits its variance into a *random* part (pixel noise, independent from frame
-to frame) and a *systematic* part (attitude, track and survey errors, correlated over
-many frames); the filter uses the sum and keeps the systematic part as a floor of the
-published covariance, because averaging frames does not remove it.
+to frame) and a *systematic* part (attitude, track and survey errors, and the camera
+calibration: stereo scale, focal length, principal point and mount angles — correlated
+over many frames and, for the calibration, over every lamp); the filter uses the sum and
+keeps the systematic part as a floor of the published covariance, because averaging
+frames does not remove it (:func:`calibration_covariance`).
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -131,6 +133,21 @@ class FixConfig:
         so unlike pixel noise it does not average out in the filter; weighting it as if
         it were ``k`` times larger shifts the fit toward the attitude-free range
         wherever the range is informative. 1 = plain single-frame GLS.
+    stereo_scale_sigma : float
+        Relative 1σ of the stereo scale fx·b as calibrated (every range scales with it),
+        dimensionless; 0 = taken as exact.
+    focal_length_sigma : float
+        Relative 1σ of the focal length at a fixed fx·b (turns the off-axis directions),
+        dimensionless.
+    principal_point_sigma_px : float
+        1σ of the principal point (cx, cy) of the rectified pair, px.
+    mount_angle_sigma_rad : tuple of 3 floats
+        1σ of the camera mount angles about ``base_link`` x, y, z (roll, pitch, yaw) as
+        calibrated, rad.
+
+    The last four are systematic: shared by every frame and every lamp of a run
+    (:func:`calibration_covariance`). A lamp map entry with ``position_sigma_m`` replaces
+    ``lamp_position_sigma_m`` for that lamp.
     """
 
     use_range_constraint: bool = True
@@ -139,11 +156,29 @@ class FixConfig:
     lamp_position_sigma_m: float = 0.005
     min_disparity_px: float = 4.0
     attitude_weight_inflation: float = 4.0
+    stereo_scale_sigma: float = 0.001
+    focal_length_sigma: float = 0.001
+    principal_point_sigma_px: float = 0.5
+    mount_angle_sigma_rad: tuple = (0.05 * math.pi / 180.0, 0.1 * math.pi / 180.0,
+                                    0.1 * math.pi / 180.0)
     track: Track = None
 
     def __post_init__(self):
         if self.track is None:
             self.track = Track(None, self.track_offset_yz_m)
+        self.mount_angle_sigma_rad = tuple(float(v) for v in self.mount_angle_sigma_rad)
+        values = (self.stereo_scale_sigma, self.focal_length_sigma,
+                  self.principal_point_sigma_px, self.lamp_position_sigma_m,
+                  *self.mount_angle_sigma_rad)
+        if len(self.mount_angle_sigma_rad) != 3 or not all(
+                math.isfinite(v) and v >= 0.0 for v in values):
+            raise ValueError('calibration and survey sigmas must be finite and >= 0 '
+                             '(mount_angle_sigma_rad: 3 values)')
+
+    def without_calibration(self):
+        """A copy with the calibration taken as exact (the pre-calibration-term model)."""
+        return replace(self, stereo_scale_sigma=0.0, focal_length_sigma=0.0,
+                       principal_point_sigma_px=0.0, mount_angle_sigma_rad=(0.0, 0.0, 0.0))
 
 
 @dataclass
@@ -245,13 +280,47 @@ def triangulate(obs, geometry, min_disparity_px=0.0):
     return p, J @ cov_in @ J.T
 
 
+def calibration_covariance(p_cam, geometry, config):
+    """Covariance (3, 3) of a triangulated lamp from the calibration's uncertainty, m².
+
+    First order, in the left optical frame, for the lamp at ``p_cam = (X, Y, Z)``: with
+    the stereo scale fx·b off by ``ε_s`` every coordinate scales (δp = ε_s·p); a focal
+    length off by ``ε_f`` at the same fx·b turns the off-axis directions
+    (δp = −ε_f·(X, Y, 0)); a principal point off by (δcx, δcy) shifts the direction
+    (δp = −Z·(δcx/fx, δcy/fy, 0)); the camera turned by δφ about ``base_link`` against
+    its calibrated mount moves the lamp across its line of sight
+    (δp = [p]×·R_bcᵀ·δφ). The errors are those of the run's calibration: the same for
+    every frame and lamp, so the fix reports them in its systematic part.
+    """
+    p = np.asarray(p_cam, dtype=float)
+    g = geometry
+    cov = config.stereo_scale_sigma ** 2 * np.outer(p, p)
+    q = np.array([p[0], p[1], 0.0])
+    cov += config.focal_length_sigma ** 2 * np.outer(q, q)
+    pp = config.principal_point_sigma_px * p[2]
+    cov += np.diag([(pp / g.fx) ** 2, (pp / g.fy) ** 2, 0.0])
+    sig = np.asarray(config.mount_angle_sigma_rad, dtype=float)
+    if np.any(sig > 0.0):
+        J = skew(p) @ g.R_base_cam.T
+        cov += J @ np.diag(sig * sig) @ J.T
+    return cov
+
+
+def lamp_sigma(lamp, config):
+    """Survey 1σ (3,) of a map lamp along map x, y, z: its own ``position_sigma_m`` where
+    the map states it, else ``config.lamp_position_sigma_m``, m.
+    """
+    return _lamp_sigma_or_default(getattr(lamp, 'position_sigma_m', None), config)
+
+
 def predicted_camera_point(base_position_m, R_map_base, lamp_position_m, geometry):
     """Lamp in the left optical frame for a given ``base_link`` pose, m (3,)."""
     p_base = R_map_base.T @ (np.asarray(lamp_position_m, float) - base_position_m)
     return geometry.R_base_cam.T @ (p_base - geometry.t_base_cam)
 
 
-def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
+              lamp_sigma_m=None):
     """``base_link`` position from the lamp's map position and the attitude (eq. 13–14).
 
     ``p_base = R_base_cam·p_cam + t_base_cam`` (eq. 13) and
@@ -269,6 +338,9 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
         Attitude error covariance about map x, y, z, rad².
     geometry : RigGeometry
     config : FixConfig
+    lamp_sigma_m : ndarray (3,) or None
+        Survey 1σ of this lamp along map x, y, z (:func:`lamp_sigma`); None:
+        ``config.lamp_position_sigma_m`` on every axis, m.
 
     Returns
     -------
@@ -283,7 +355,9 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
     # R_true = Exp(δθ)·R: p = lamp − Exp(δθ)·R·w ⇒ ∂p/∂δθ = [R·w]×
     J_att = t @ skew(Rw)
     var_random = float(J_cam @ cov_cam @ J_cam)
-    var_sys = float(J_att @ cov_att @ J_att) + config.lamp_position_sigma_m ** 2
+    sigma_lamp = _lamp_sigma_or_default(lamp_sigma_m, config)
+    var_sys = (float(J_att @ cov_att @ J_att) + float(t @ (sigma_lamp ** 2 * t))
+               + float(J_cam @ calibration_covariance(p_cam, geometry, config) @ J_cam))
     return FixResult(chainage_m=chainage, var_m2=var_random + var_sys,
                      var_random_m2=var_random, var_systematic_m2=var_sys,
                      chi2_geometry=float('nan'), position_m=position,
@@ -300,7 +374,8 @@ def exp_so3(v):
             + (1.0 - math.cos(angle)) / (angle * angle) * K @ K)
 
 
-def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
+                    lamp_sigma_m=None):
     """Chainage of ``base_link`` by a Gauss–Newton fit under the track constraint, with
     the attitude error estimated alongside it.
 
@@ -310,7 +385,7 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
         p_cam = R_cbᵀ · (Rᵀ·Exp(−δθ)·(p_lamp − (s, y0, z0)) − t_cb)
 
     Unknowns ``s`` and ``δθ`` (4); measurements the three triangulated coordinates
-    (covariance: triangulation + track offsets + lamp survey) and the prior
+    (covariance: triangulation + track offsets + lamp survey + calibration) and the prior
     ``δθ ~ N(0, Σ_att)`` from ``imu/data`` (3). The fit is iterated to convergence
     because a linearisation about ``δθ = 0`` fails exactly when it matters: after a
     cold start at speed the heading is uncertain by ~5°, and the second-order term
@@ -329,7 +404,7 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
     """
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base,
                         np.asarray(cov_att, float) * config.attitude_weight_inflation,
-                        geometry, config)
+                        geometry, config, lamp_sigma_m)
     s, dtheta, cov_post, J, W, e, prior_info = fit
     var = float(cov_post[0, 0])
     # s = K·p_cam to first order: its pixel-noise part (independent frame to frame)
@@ -342,7 +417,15 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
                      attitude_error_rad=dtheta, attitude_error_cov_rad2=cov_post[1:, 1:])
 
 
-def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config):
+def _lamp_sigma_or_default(lamp_sigma_m, config):
+    if lamp_sigma_m is None:
+        return np.full(3, config.lamp_position_sigma_m)
+    sigma = np.asarray(lamp_sigma_m, dtype=float).reshape(3)
+    return np.where(np.isfinite(sigma), sigma, config.lamp_position_sigma_m)
+
+
+def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config,
+                  lamp_sigma_m=None):
     """Gauss–Newton fit of ``s`` and ``δθ`` (see :func:`constrained_fix`).
 
     Returns ``(s, δθ, cov_post (4, 4), J (3, 4), W (3, 3), residual (3,), prior_info)``
@@ -358,8 +441,10 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     s = track.chainage_of(lamp - R_map_base @ (g.R_base_cam @ p_cam + g.t_base_cam))
     _, _, n = track.frame(s)
     A_nz = B @ np.column_stack([n, [0.0, 0.0, 1.0]])
+    sigma_lamp = _lamp_sigma_or_default(lamp_sigma_m, config)
     cov_meas = (cov_cam + A_nz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_nz.T
-                + np.eye(3) * config.lamp_position_sigma_m ** 2)
+                + B @ np.diag(sigma_lamp ** 2) @ B.T
+                + calibration_covariance(p_cam, g, config))
     W = np.linalg.inv(cov_meas)
     prior_info = np.linalg.inv(cov_prior + np.eye(3) * 1e-14)
     dtheta = np.zeros(3)
@@ -395,7 +480,8 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
 VISION_ATTITUDE_PRIOR_SIGMA_RAD = (0.2, 0.2, 1.0)
 
 
-def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config):
+def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config,
+                    lamp_sigma_m=None):
     """Attitude error of the IMU seen by one lamp, without the IMU's attitude prior.
 
     The fit of :func:`constrained_fix` with the IMU prior replaced by a weak one
@@ -414,12 +500,18 @@ def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, confi
         covariance, rad².
     """
     cov_prior = np.diag(np.square(VISION_ATTITUDE_PRIOR_SIGMA_RAD))
+    # Without the calibration terms: with the weak prior a near lamp has a mirror solution
+    # (the same range with the heading turned the other way and the chainage metres off),
+    # and the direction weakened by the mount uncertainty let the iteration reach it from
+    # a 30° heading error. The mount error (0.1°) is small beside the aid's own σ.
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
-                        config)
+                        config.without_calibration(), lamp_sigma_m)
     return np.asarray(fit[1], float), np.asarray(fit[2][1:, 1:], float)
 
 
-def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config):
+def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
+                lamp_sigma_m=None):
     """:func:`constrained_fix` or :func:`paper_fix` as ``config.use_range_constraint`` says."""
     fn = constrained_fix if config.use_range_constraint else paper_fix
-    return fn(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config)
+    return fn(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
+              lamp_sigma_m)

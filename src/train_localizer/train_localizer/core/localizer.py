@@ -34,6 +34,7 @@ from train_localizer.core.fix import (
     RigGeometry,
     compute_fix,
     exp_so3,
+    lamp_sigma,
     measurement_time_ns,
     triangulate,
     vision_attitude,
@@ -130,6 +131,10 @@ class LocalizerConfig:
     tilt_leak_time_s : float
         Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
         ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
+    systematic_weight_inflation : float
+        Factor on each fix's systematic variance in the filter update (the gate uses the
+        plain sum): the systematic error is shared by consecutive fixes, so each must not
+        count as an independent measurement of it. 1 = white.
     imu_lever_arm_m : tuple of 3 floats
         Position of the IMU in ``base_link``, m: its rotational accelerations are
         removed before the specific force is used.
@@ -168,6 +173,7 @@ class LocalizerConfig:
     attitude_distrust_s: float = 2.0
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
+    systematic_weight_inflation: float = 3.0
     attitude_aiding_period_s: float = 0.2
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
@@ -180,7 +186,7 @@ class LocalizerConfig:
                      'attitude_plausible_rad', 'attitude_distrust_s',
                      'backward_reset_s', 'imu_backward_s', 'blind_gap_s', 'clock_tolerance_s',
                      'initial_chainage_sigma_m', 'max_speed_mps',
-                     'init_lookback_s'):
+                     'init_lookback_s', 'systematic_weight_inflation'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
@@ -300,6 +306,13 @@ class Localizer:
         self._gate.fix_pending = self.config.publish_on_fix
         return True
 
+    @property
+    def systematic_sigma_m(self):
+        """1σ of the systematic error the state carries (survey, calibration, attitude;
+        part of the published chainage σ), m.
+        """
+        return math.sqrt(self._systematic_var)
+
     def status(self):
         """(IntegrityState, Level, message, published chainage 1σ in m or NaN)."""
         state = self.current_state()
@@ -316,8 +329,9 @@ class Localizer:
         return st, level, msg, sigma
 
     def _extra_var(self):
-        """Published chainage variance beyond the filter's: the last fix's systematic part
-        and the contradiction of a confirmed lamp not yet resolved, m².
+        """Published chainage variance beyond the filter's: the systematic part the state
+        carries (:meth:`_blend_systematic`) and the contradiction of a confirmed lamp not
+        yet resolved, m².
         """
         return self._systematic_var + self.monitor.suspicion_var_m2()
 
@@ -635,7 +649,7 @@ class Localizer:
         """(FixResult, geometry_ok) of a prepared observation explained by ``lamp``."""
         cfg = self.config
         fix = compute_fix(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R, prep.cov_att,
-                          cfg.geometry, cfg.fix)
+                          cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
         geometry_ok = not (fix.chi2_geometry > cfg.integrity.geometry_gate_chi2)
         return fix, geometry_ok
 
@@ -731,7 +745,7 @@ class Localizer:
         if self._last_aid_ns is not None and abs(prep.t_ns - self._last_aid_ns) < period * NS_PER_S:
             return
         dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
-                                      cfg.geometry, cfg.fix)
+                                      cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
         cov = 0.5 * (cov + cov.T)
         if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
                 and np.all(np.linalg.eigvalsh(cov) > 0.0)):
@@ -801,11 +815,41 @@ class Localizer:
         return lamp, fix, d2, why
 
     def _apply_fix(self, t_m, fix):
+        self._blend_systematic(t_m, fix)
         i = self._insert_step(t_m)
-        self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, fix.var_m2))
-        self._systematic_var = fix.var_systematic_m2
+        self._steps.add_update(i, ('z', H_CHAINAGE, fix.chainage_m, self._update_var(fix)))
         self._has_fix = True
         self._gate.fix_pending = self.config.publish_on_fix
+
+    def _update_var(self, fix):
+        """Variance a fix is given in the filter update, m²: its random part plus its
+        systematic part times ``systematic_weight_inflation``. Consecutive fixes share
+        the systematic error (one lamp's survey, one calibration), so N frames carry its
+        information once, not N times; weighting it as larger keeps a bias that changes
+        with the range (stereo scale, mount angles) from being read as speed.
+        """
+        return fix.var_random_m2 + self.config.systematic_weight_inflation * fix.var_systematic_m2
+
+    def _blend_systematic(self, t_m, fix):
+        """The systematic variance the state carries after a fix at ``t_m``.
+
+        A fix moves the chainage by its gain k = P/(P + r): the state's systematic error
+        becomes (1 − k)·(its own) + k·(the fix's). The errors of successive fixes are
+        correlated (one calibration, one lamp seen in many frames), so their 1σ add
+        linearly, the bound for any correlation: a blend of far lamps (stereo scale
+        × range) stays that large after a near lamp, and no number of frames of one lamp
+        brings it below that lamp's survey error.
+        """
+        state = self._steps.state_at(t_m) if self._steps.t else None
+        if state is None:
+            self._systematic_var = fix.var_systematic_m2
+            return
+        p = float(state.P[0, 0])
+        r = self._update_var(fix)
+        k = p / (p + r) if p + r > 0.0 else 1.0
+        sigma = ((1.0 - k) * math.sqrt(self._systematic_var)
+                 + k * math.sqrt(max(fix.var_systematic_m2, 0.0)))
+        self._systematic_var = sigma * sigma
 
     def _try_initialise(self, prep, lamp, report):
         """Cold start: wait for a confirmed lamp, then start from its recent track."""
