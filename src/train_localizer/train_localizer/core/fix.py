@@ -61,6 +61,16 @@ class RigGeometry:
         Columns: the optical x, y, z axes expressed in ``base_link``.
     row_time_s, exposure_s : float
         Rolling shutter: row r is exposed over [t0 + r·row_time_s, … + exposure_s], s.
+    calibration_sigma_px : tuple of 2 floats
+        1σ of the stereo calibration's error in the rectified centres (direction, px:
+        principal point, distortion, rectification) and in the disparity (px: the
+        stereo rotation and the residual of the lenses' distortion), a systematic
+        error (the same for every frame) of a real calibration; used only while
+        ``raw_images`` (camera_info with a lens D or a rectification R).
+    raw_images : bool
+        The spot pairs come from raw images rectified through a calibration
+        (:class:`~train_localizer.conversions.CameraInfoIntrinsics` sets it); with an
+        ideal rectified pair (the simulated ideal rig) the geometry is exact.
     """
 
     fx: float = 1040.0
@@ -72,6 +82,8 @@ class RigGeometry:
     R_base_cam: np.ndarray = None
     row_time_s: float = 30e-6
     exposure_s: float = 50e-6
+    calibration_sigma_px: tuple = (0.0, 0.0)
+    raw_images: bool = False
 
     def __post_init__(self):
         if self.t_base_cam is None or self.R_base_cam is None:
@@ -245,6 +257,32 @@ def triangulate(obs, geometry, min_disparity_px=0.0):
     return p, J @ cov_in @ J.T
 
 
+def calibration_covariance(p_cam, geometry):
+    """(3, 3) covariance of a triangulated lamp ``p_cam`` (left optical frame, m) from
+    the calibration's systematic error (``geometry.calibration_sigma_px``: direction and
+    disparity 1σ, px), through the triangulation Jacobian; zero unless
+    ``geometry.raw_images``.
+
+    A calibration of 0.15 px reprojection RMS still leaves the rectified pair a few
+    tenths of a pixel of disparity error (its stereo rotation to ~0.01°, the lenses'
+    distortion near the image corners): 0.4 px on the 13 px of a lamp 9 m ahead is a
+    3 % range error, 30 cm, far above the spot's own 0.02 px. Weighted as such, the fix
+    leans on the lamp's direction where the range is weak instead of trusting a biased
+    range.
+    """
+    sigma_dir, sigma_disp = (float(v) for v in geometry.calibration_sigma_px)
+    if not geometry.raw_images or (sigma_dir <= 0.0 and sigma_disp <= 0.0):
+        return np.zeros((3, 3))
+    g = geometry
+    p = np.asarray(p_cam, float)
+    k = p[2] / g.fx                                   # b/d with d = fx·b/z
+    d = g.fx * g.baseline_m / p[2]
+    J = np.array([[k, 0.0, -p[0] / d],
+                  [0.0, (g.fx / g.fy) * k, -p[1] / d],
+                  [0.0, 0.0, -p[2] / d]])
+    return J @ np.diag([sigma_dir ** 2, sigma_dir ** 2, sigma_disp ** 2]) @ J.T
+
+
 def predicted_camera_point(base_position_m, R_map_base, lamp_position_m, geometry):
     """Lamp in the left optical frame for a given ``base_link`` pose, m (3,)."""
     p_base = R_map_base.T @ (np.asarray(lamp_position_m, float) - base_position_m)
@@ -283,7 +321,8 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
     # R_true = Exp(δθ)·R: p = lamp − Exp(δθ)·R·w ⇒ ∂p/∂δθ = [R·w]×
     J_att = t @ skew(Rw)
     var_random = float(J_cam @ cov_cam @ J_cam)
-    var_sys = float(J_att @ cov_att @ J_att) + config.lamp_position_sigma_m ** 2
+    var_sys = (float(J_att @ cov_att @ J_att) + config.lamp_position_sigma_m ** 2
+               + float(J_cam @ calibration_covariance(p_cam, geometry) @ J_cam))
     return FixResult(chainage_m=chainage, var_m2=var_random + var_sys,
                      var_random_m2=var_random, var_systematic_m2=var_sys,
                      chi2_geometry=float('nan'), position_m=position,
@@ -342,11 +381,13 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
                      attitude_error_rad=dtheta, attitude_error_cov_rad2=cov_post[1:, 1:])
 
 
-def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config):
+def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config,
+                  calibration_scale=1.0):
     """Gauss–Newton fit of ``s`` and ``δθ`` (see :func:`constrained_fix`).
 
     Returns ``(s, δθ, cov_post (4, 4), J (3, 4), W (3, 3), residual (3,), prior_info)``
-    at the solution.
+    at the solution. ``calibration_scale`` multiplies the calibration's covariance
+    (:func:`calibration_covariance`) in the measurement covariance.
     """
     g = geometry
     track = config.track
@@ -359,7 +400,8 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     _, _, n = track.frame(s)
     A_nz = B @ np.column_stack([n, [0.0, 0.0, 1.0]])
     cov_meas = (cov_cam + A_nz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_nz.T
-                + np.eye(3) * config.lamp_position_sigma_m ** 2)
+                + np.eye(3) * config.lamp_position_sigma_m ** 2
+                + calibration_scale * calibration_covariance(p_cam, g))
     W = np.linalg.inv(cov_meas)
     prior_info = np.linalg.inv(cov_prior + np.eye(3) * 1e-14)
     dtheta = np.zeros(3)
@@ -395,7 +437,8 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
 VISION_ATTITUDE_PRIOR_SIGMA_RAD = (0.2, 0.2, 1.0)
 
 
-def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config):
+def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config,
+                    calibration_scale=1.0):
     """Attitude error of the IMU seen by one lamp, without the IMU's attitude prior.
 
     The fit of :func:`constrained_fix` with the IMU prior replaced by a weak one
@@ -415,7 +458,7 @@ def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, confi
     """
     cov_prior = np.diag(np.square(VISION_ATTITUDE_PRIOR_SIGMA_RAD))
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
-                        config)
+                        config, calibration_scale)
     return np.asarray(fit[1], float), np.asarray(fit[2][1:, 1:], float)
 
 
