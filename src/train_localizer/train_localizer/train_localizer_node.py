@@ -113,7 +113,7 @@ PARAMETERS = (
     ('calibration_sigma_px', 0.5, _desc('Raw images (camera_info with D or R): 1-sigma '
                                         'systematic error of the calibration in the '
                                         'rectified centres, px.', 0.0, 100.0)),
-    ('calibration_disparity_sigma_px', 0.4, _desc('Raw images: 1-sigma systematic error of '
+    ('calibration_disparity_sigma_px', 0.8, _desc('Raw images: 1-sigma systematic error of '
                                                   'the calibration in the disparity, px.',
                                                   0.0, 100.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
