@@ -124,7 +124,7 @@ PARAMETERS = (
      _desc('Attitude 1-sigma without an attitude (use_imu_attitude false), deg.')),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
-    ('attitude_aiding_calibration_inflation', 25.0, _desc(
+    ('attitude_aiding_calibration_inflation', 5.0, _desc(
         'Raw images: factor on the calibration covariance in the attitude an aid reports '
         '(the same error in every aid; the compensator fuses them as independent).',
         1.0, 1e6)),

@@ -176,7 +176,7 @@ class LocalizerConfig:
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
     attitude_aiding_period_s: float = 0.2
-    attitude_aiding_calibration_inflation: float = 25.0
+    attitude_aiding_calibration_inflation: float = 5.0
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
     initial_speed_mps: float = float('nan')
