@@ -256,3 +256,52 @@ def test_a_lamp_map_sigma_replaces_the_configured_survey_sigma():
     assert own.var_systematic_m2 > default.var_systematic_m2 + 0.5 * 0.05 ** 2
     pf = paper_fix(p_cam, cov, LAMP.position_m, np.eye(3), att, GEOM, cfg, [0.05, 0.0, 0.0])
     assert pf.var_systematic_m2 == pytest.approx(0.05 ** 2, rel=0.01)
+
+
+def _biased_disparity(dx, bias_px):
+    """A lamp ``dx`` ahead seen with the disparity ``bias_px`` too large (a calibration's
+    stereo error), the attitude exact; returns (p_cam, cov_cam, base, R).
+    """
+    R = np.eye(3)
+    base = np.array([LAMP.position_m[0] - dx, 0.0, 0.0])
+    obs = observe(base, R, sigma=0.02)
+    obs = LampObservation(stamp_ns=0, uid=obs.uid, uv_left=obs.uv_left,
+                          uv_right=obs.uv_right - np.array([bias_px, 0.0]),
+                          sigma_u_px=0.02, sigma_v_px=0.02)
+    p_cam, cov = triangulate(obs, GEOM)
+    return p_cam, cov, base, R
+
+
+def test_raw_images_weight_the_calibrations_disparity_error():
+    # The realistic rig's calibration leaves ~0.4 px of disparity error: 9 m ahead that
+    # is a 3 % (~30 cm) range error the spot's own 0.02 px hides. Weighted as the
+    # calibration's (raw images), the fix rests on the lamp's direction under the
+    # attitude (0.1° heading 1σ) instead; with the ideal rig (no raw images) nothing
+    # changes.
+    import dataclasses
+    cov_att = np.diag(np.square([0.05 * DEG, 0.05 * DEG, 0.1 * DEG]))
+    config = FixConfig()
+    p_cam, cov, base, R = _biased_disparity(8.5, 0.4)
+    ideal = constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, GEOM, config)
+    geom = dataclasses.replace(GEOM, calibration_sigma_px=(0.5, 0.4))
+    assert constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att, geom,
+                           config).chainage_m == ideal.chainage_m     # not raw: unchanged
+    raw = constrained_fix(p_cam, cov, LAMP.position_m, R, cov_att,
+                          dataclasses.replace(geom, raw_images=True), config)
+    assert abs(ideal.chainage_m - base[0]) > 0.15                       # the biased range
+    assert abs(raw.chainage_m - base[0]) < 0.06
+    assert abs(raw.chainage_m - base[0]) < 2.0 * math.sqrt(raw.var_m2)  # honest variance
+    assert raw.var_systematic_m2 > ideal.var_systematic_m2              # not averaged away
+
+
+def test_vision_attitude_of_raw_images_carries_the_calibration_error():
+    # A biased range moves the lamp's chainage and with it the heading its direction
+    # shows; the aid's covariance must say so (inflated: the same error in every aid).
+    import dataclasses
+    p_cam, cov, base, R = _biased_disparity(8.5, 0.4)
+    geom = dataclasses.replace(GEOM, calibration_sigma_px=(0.5, 0.4), raw_images=True)
+    dtheta, cov_aid = vision_attitude(p_cam, cov, LAMP.position_m, R, GEOM, FixConfig())
+    assert np.linalg.norm(dtheta) > 0.2 * DEG             # the true attitude error is 0
+    assert dtheta @ np.linalg.solve(cov_aid, dtheta) > 25.0          # and it claims > 5σ
+    raw, cov_raw = vision_attitude(p_cam, cov, LAMP.position_m, R, geom, FixConfig(), 25.0)
+    assert raw @ np.linalg.solve(cov_raw, raw) < 1.0 / 25.0 * 9.0    # within 3σ/√25

@@ -173,6 +173,8 @@ class CameraInfoIntrinsics:
         if self.join_config is not None:
             self.join_config.rectify_left = (None if left_model is None
                                              else left_model.rectify_points)
+        # a calibration's systematic error applies to raw images (RigGeometry)
+        g.raw_images = left_model is not None
         if ((g.fx, g.fy, g.cx, g.cy, g.baseline_m) == (fx, fy, cx, cy, baseline)
                 and np.array_equal(g.R_base_cam, R_base_cam)):
             return None

@@ -126,6 +126,12 @@ PARAMETERS = (
                                                'in the filter update (shared by consecutive '
                                                'fixes); 1 = white.', 1.0, 1000.0)),
     ('min_disparity_px', 4.0, _desc('Smallest usable disparity, px.', 0.0, 1000.0)),
+    ('calibration_sigma_px', 0.5, _desc('Raw images (camera_info with D or R): 1-sigma '
+                                        'systematic error of the calibration in the '
+                                        'rectified centres, px.', 0.0, 100.0)),
+    ('calibration_disparity_sigma_px', 0.8, _desc('Raw images: 1-sigma systematic error of '
+                                                  'the calibration in the disparity, px.',
+                                                  0.0, 100.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
     ('attitude_sigma_floor_deg', [0.05, 0.05, 0.1],
@@ -134,6 +140,10 @@ PARAMETERS = (
      _desc('Attitude 1-sigma without an attitude (use_imu_attitude false), deg.')),
     ('unknown_accel_sigma_mps2', 1.5, _desc('1-sigma acceleration over an IMU gap, m/s^2.',
                                             0.0, 20.0)),
+    ('attitude_aiding_calibration_inflation', 5.0, _desc(
+        'Raw images: factor on the calibration covariance in the attitude an aid reports '
+        '(the same error in every aid; the compensator fuses them as independent).',
+        1.0, 1e6)),
     ('attitude_aiding_period_s', 0.2, _desc('Shortest interval between two attitude_aiding '
                                             'messages (the attitude an accepted lamp shows), '
                                             's; 0 = none.', 0.0, 60.0)),
@@ -360,6 +370,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             tilt_leak_time_s=p['tilt_leak_time_s'],
             systematic_weight_inflation=p['systematic_weight_inflation'],
             attitude_aiding_period_s=p['attitude_aiding_period_s'],
+            attitude_aiding_calibration_inflation=p['attitude_aiding_calibration_inflation'],
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,

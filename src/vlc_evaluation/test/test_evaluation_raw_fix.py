@@ -82,3 +82,26 @@ def test_attitude_interpolates_and_falls_back_to_identity():
     R, c = raw_fix.attitude_at(2.0, t, q, cov)
     np.testing.assert_allclose(R, np.eye(3))
     assert c[2, 2] == pytest.approx(np.radians(5.0) ** 2)
+
+
+def test_a_drawn_installation_is_placed_with_the_receivers_belief(tmp_path):
+    # Raw single-frame rows of a realistic run: the belief calibration as the localizer
+    # takes it from camera_info (P's focal length, the left R, the calibration's error
+    # weights, the decoder's raw positions rectified), the measured mount, the survey;
+    # not the nominal rig (fx 1040 where the belief's P has ~1003).
+    from vlc_common.core.vehicle import load_vehicle
+    from vlc_stereo_camera.core.installation import draw_installation
+    inst = draw_installation('realistic', 1, load_vehicle(''),
+                             LampMap.load(default_lamp_map_path()))
+    inst.write(tmp_path)
+    geometry, lamp_map, rectify_left = raw_fix.belief_setup(tmp_path)
+    left = inst.calibration.left
+    assert geometry.fx == left.P[0, 0] and geometry.cx == left.P[0, 2]
+    assert geometry.raw_images and min(geometry.calibration_sigma_px) > 0.0
+    np.testing.assert_allclose(geometry.R_base_cam,
+                               inst.vehicle_belief.camera.R_base_cam @ left.R.T)
+    uv = np.array([[100.0, 80.0], [1200.0, 650.0]])
+    np.testing.assert_allclose(rectify_left(uv), left.rectify_points(uv))
+    lamp = lamp_map.by_uid(0x1005)
+    np.testing.assert_allclose(lamp.position_m, inst.lamp_map_belief.by_uid(0x1005).position_m,
+                               atol=1e-5)

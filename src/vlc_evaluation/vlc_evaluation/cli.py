@@ -67,13 +67,16 @@ def build_scenarios(args):
     static, dynamic = [], []
     if args.protocol == 'demo':
         static = scenarios.static_scenarios(points_m=(9.0, 5.0, 2.0), trials=1,
-                                            observe_s=args.observe_s)
-        dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4)
+                                            observe_s=args.observe_s,
+                                            first_seed=args.first_seed)
+        dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4,
+                                              first_seed=args.first_seed)
     if args.protocol in ('static', 'full'):
-        static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s)
+        static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s,
+                                            first_seed=args.first_seed)
     if args.protocol in ('dynamic', 'full'):
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=tuple(args.speeds), runs=args.runs,
-                                              cells=args.cells)
+                                              cells=args.cells, first_seed=args.first_seed)
     for scenario in static + dynamic:
         scenario.realtime_factor = args.realtime_factor
     return static, dynamic
@@ -92,6 +95,10 @@ def main(argv=None):
     parser.add_argument('--speeds', type=int, nargs='+', default=[20, 40, 60, 80, 100, 120])
     parser.add_argument('--runs', type=int, default=10, help='dynamic runs per speed')
     parser.add_argument('--cells', type=int, default=6, help='dynamic: lamp cells per run')
+    parser.add_argument('--first-seed', type=int, default=1,
+                        help='seed of the first static trial and dynamic run (the others '
+                             'follow: first, first + 1, ...); e.g. --protocol demo '
+                             '--first-seed 2 runs the demo on seed 2')
     parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
     parser.add_argument('--lanes', type=int, default=2,
                         help='scenarios run in parallel, each on a DDS domain of its own')

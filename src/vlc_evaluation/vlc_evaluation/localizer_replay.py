@@ -151,16 +151,43 @@ class ReplayResult:
     heading: np.ndarray = None            # (M, 2) t_s, compensator yaw rad (--compensator)
 
 
-def replay(bag, params, compensator=None):
+def camera_info_messages(paths):
+    """The two CameraInfo-like objects (fields ``width``, ``height``, ``k``, ``d``, ``r``,
+    ``p``, ``distortion_model``) of a stereo calibration file pair (camera_info_manager
+    YAML, e.g. an installation's ``belief/left.yaml``, ``belief/right.yaml``), as the
+    node receives them on ``stereo/*/camera_info``.
+    """
+    from types import SimpleNamespace
+
+    from vlc_common.core.calibration import load_stereo_calibration
+    calibration = load_stereo_calibration([str(p) for p in paths])
+    return [SimpleNamespace(width=int(i['width']), height=int(i['height']),
+                            k=np.ravel(i['K']).tolist(), d=np.ravel(i['D']).tolist(),
+                            r=np.ravel(i['R']).tolist(), p=np.ravel(i['P']).tolist(),
+                            distortion_model=i['distortion_model'])
+            for i in calibration.camera_info_dicts()]
+
+
+def replay(bag, params, compensator=None, camera_info=None):
     """Run the localizer core over a bag's recorded inputs; returns a ReplayResult.
 
     ``compensator``: a :class:`CompensatorLoop` run on ``/imu/data_raw`` in place of the
-    recorded ``/imu/data``, with the localizer's heading aids fed back.
+    recorded ``/imu/data``, with the localizer's heading aids fed back. ``camera_info``:
+    the (left, right) CameraInfo-like pair (:func:`camera_info_messages`) offered to the
+    localizer before the first frame, as the node takes the latched camera_info (the
+    recorded bags carry none); None = the parameters' intrinsics.
     """
     from train_localizer.train_localizer_node import TrainLocalizerNode  # the node's config builder
     lamp_map, config = TrainLocalizerNode.setup(params)
-    loc = Localizer(lamp_map, config)
     joiner = FrameJoiner()
+    if camera_info is not None:
+        intrinsics = conversions.CameraInfoIntrinsics(config.geometry, True,
+                                                      joiner.config)
+        for index, msg in enumerate(camera_info):
+            outcome = intrinsics.update(index, msg)
+            if outcome is not None and outcome[0] == 'warn':
+                raise ValueError(f'camera_info: {outcome[1]}')
+    loc = Localizer(lamp_map, config)
     poses, truth, status, fix_ms = [], [], {}, []
     imu_topic = RAW_IMU_TOPIC if compensator else '/imu/data'
 
@@ -254,6 +281,10 @@ def main(argv=None):
                         help="with --compensator; default: the compensator node's own")
     parser.add_argument('--settle-s', type=float, default=0.0,
                         help='leave out poses this long after the first truth stamp')
+    parser.add_argument('--camera-info', nargs=2, metavar=('LEFT', 'RIGHT'), default=None,
+                        help='camera_info_manager YAML pair the live node would get on '
+                        'stereo/*/camera_info (e.g. BAG.installation/belief/left.yaml '
+                        'right.yaml): intrinsics, baseline and the raw images\' R from it')
     parser.add_argument('--json', action='store_true', help='print JSON instead of text')
     args = parser.parse_args(argv)
     try:
@@ -269,7 +300,11 @@ def main(argv=None):
                                        dict(args.compensator_overrides))
             except (OSError, ValueError) as exc:
                 parser.error(str(exc))
-        out[bag] = score(replay(bag, params, loop), args.settle_s)
+        try:
+            infos = camera_info_messages(args.camera_info) if args.camera_info else None
+        except (OSError, ValueError) as exc:
+            parser.error(str(exc))
+        out[bag] = score(replay(bag, params, loop, infos), args.settle_s)
     if args.json:
         print(json.dumps(out, indent=1))
         return 0

@@ -13,6 +13,12 @@ functions (:func:`train_localizer.core.fix.compute_fix`):
 * ``constrained``: this project's single-frame fix (track constraint + stereo range).
 
 Fixes are stamped at the spot's exposure mid-time and compared with the truth there.
+
+A run of a drawn rig profile (``realistic``, ``harsh``) is placed with what its receivers
+believe (:func:`belief_setup`): the installation's surveyed lamp map, its vehicle file and
+its calibration as the localizer takes it from camera_info (rectified intrinsics, the
+left R, the calibration's error weights, the decoder's raw positions rectified for the
+UID match), not the nominal rig, whose intrinsics are not the camera's.
 """
 import math
 
@@ -58,15 +64,54 @@ def attitude_at(t_s, imu_t, imu_quat, imu_cov):
     return quat_to_matrix(q), cov
 
 
-def confirmed_uid(pair, lamp_records, match_radius_px):
-    """UID of the confirmed decoder record nearest to ``pair`` (left centres), or None."""
+def belief_setup(installation_dir, localizer_params=None):
+    """(RigGeometry, LampMap, rectify_left) of a drawn installation's ``belief/`` files
+    as the localizer uses them: the vehicle file's mount, the camera_info of
+    ``left.yaml``/``right.yaml`` through
+    :class:`train_localizer.conversions.CameraInfoIntrinsics`, the calibration error
+    weights of the localizer's parameters (``localizer_params``; default: its file), the
+    surveyed lamp map; ``rectify_left`` maps the decoder's raw left positions (None for
+    rectified camera_info).
+    """
+    import pathlib
+
+    from train_localizer.conversions import CameraInfoIntrinsics
+    from train_localizer.core.join import JoinConfig
+    from train_localizer.node_parameters import rig_geometry
+    from vlc_common.core.lamp_map import LampMap
+    from vlc_common.core.vehicle import load_vehicle
+    from vlc_evaluation.localizer_replay import camera_info_messages, load_params
+    belief = pathlib.Path(installation_dir) / 'belief'
+    p = dict(localizer_params or load_params())
+    geometry = rig_geometry(p, load_vehicle(str(belief / 'vehicle.yaml')))
+    join = JoinConfig()
+    intrinsics = CameraInfoIntrinsics(geometry, True, join)
+    for index, msg in enumerate(camera_info_messages([belief / 'left.yaml',
+                                                      belief / 'right.yaml'])):
+        outcome = intrinsics.update(index, msg)
+        if outcome is not None and outcome[0] == 'warn':
+            raise ValueError(f'{belief}: camera_info {outcome[1]}')
+    return geometry, LampMap.load(str(belief / 'lamp_map.yaml')), join.rectify_left
+
+
+def confirmed_uid(pair, lamp_records, match_radius_px, rectify_left=None):
+    """UID of the confirmed decoder record nearest to ``pair`` (left centres), or None.
+
+    ``rectify_left``: maps the decoder's raw left positions (N, 2) to the pairs'
+    rectified pixels (raw images).
+    """
     if lamp_records is None or len(lamp_records) == 0:
         return None
     ok = lamp_records['state'] == CONFIRMED
     if not np.any(ok):
         return None
     recs = lamp_records[ok]
-    d = np.hypot(recs['left_u'] - pair['u_left'], recs['left_v'] - pair['v_left'])
+    left = np.column_stack([recs['left_u'], recs['left_v']]).astype(float)
+    if rectify_left is not None:
+        finite = np.all(np.isfinite(left), axis=1)
+        if np.any(finite):
+            left[finite] = rectify_left(left[finite])
+    d = np.hypot(left[:, 0] - pair['u_left'], left[:, 1] - pair['v_left'])
     d = np.where(np.isfinite(d), d, np.hypot(recs['right_u'] - pair['u_right'],
                                              recs['right_v'] - pair['v_right']))
     if not np.any(np.isfinite(d)):
@@ -76,7 +121,7 @@ def confirmed_uid(pair, lamp_records, match_radius_px):
 
 
 def raw_fixes(run, lamp_map, method='paper', geometry=None, config=None,
-              match_radius_px=12.0):
+              match_radius_px=12.0, rectify_left=None):
     """Every single-frame fix of a run.
 
     Returns a dict of arrays: ``t_s`` (measurement instants, s), ``position_m`` (N, 3),
@@ -87,7 +132,8 @@ def raw_fixes(run, lamp_map, method='paper', geometry=None, config=None,
     rows = {'t_s': [], 'position_m': [], 'uid': [], 'range_m': []}
     for stamp_ns in sorted(run.pairs):
         for pair in run.pairs[stamp_ns]:
-            uid = confirmed_uid(pair, run.lamps.get(stamp_ns), match_radius_px)
+            uid = confirmed_uid(pair, run.lamps.get(stamp_ns), match_radius_px,
+                                rectify_left)
             lamp = lamp_map.by_uid(uid) if uid is not None else None
             if lamp is None:
                 continue
@@ -116,15 +162,19 @@ def raw_fixes(run, lamp_map, method='paper', geometry=None, config=None,
             'uid': np.asarray(rows['uid'], int), 'range_m': np.asarray(rows['range_m'], float)}
 
 
-def score_raw_static(run, lamp_map):
+def score_raw_static(run, lamp_map, belief=None):
     """Static protocol, raw: the last single-frame fix of the trial (and every frame).
 
     Returns ``{method: {'error_m', 'along_m', 'frames', 'every_frame'}}``; ``error_m``
-    is None (a miss) when no frame gave a fix.
+    is None (a miss) when no frame gave a fix. ``belief``: the (geometry, lamp map,
+    rectify_left) of :func:`belief_setup` for a drawn installation.
     """
     out = {}
+    geometry, rectify_left = None, None
+    if belief is not None:
+        geometry, lamp_map, rectify_left = belief
     for method in METHODS:
-        fixes = raw_fixes(run, lamp_map, method)
+        fixes = raw_fixes(run, lamp_map, method, geometry=geometry, rectify_left=rectify_left)
         # The truth is stamped per frame (row 0) and a fix at its spot's exposure time,
         # up to one readout later: the last frame's fix lies past the last truth
         # sample. The train stands, so the truth is held there for one frame period.

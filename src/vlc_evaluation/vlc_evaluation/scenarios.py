@@ -175,12 +175,18 @@ def _latency_samples(run):
     return {k: np.round(v, 3).tolist() for k, v in latency.frame_latencies(run).items()}
 
 
-def score_static(run, scenario, lamp_map):
+def score_static(run, scenario, lamp_map, bag=None):
     """Static result: the last pose published (after ``observe_s``), or a miss; the raw
-    single-frame fixes of the same trial (:mod:`.raw_fix`).
+    single-frame fixes of the same trial (:mod:`.raw_fix`; a drawn rig profile's with
+    the belief of ``<bag>.installation``).
     """
+    belief = None
+    if scenario.rig_profile != 'ideal' and bag is not None:
+        folder = pathlib.Path(bag).parent / f'{scenario.name}.installation'
+        if (folder / 'belief').is_dir():
+            belief = raw_fix.belief_setup(folder)
     out = {'point_m': scenario.static_point_m, 'seed': scenario.seed, 'error_m': None,
-           'along_m': None, 'raw': raw_fix.score_raw_static(run, lamp_map),
+           'along_m': None, 'raw': raw_fix.score_raw_static(run, lamp_map, belief),
            'health': bag_eval.graph_health(run), 'latency_ms': _latency_samples(run),
            'processing_ms': bag_eval.processing_times(run)}
     # the last pose whose instant the truth covers (the IMU runs past the last frame)
@@ -276,7 +282,7 @@ def score_scenario(bag, scenario, lamp_map):
     elif scenario.is_replay:
         result = score_replay(run, scenario, lamp_map)
     elif scenario.is_static:
-        result = score_static(run, scenario, lamp_map)
+        result = score_static(run, scenario, lamp_map, bag)
     else:
         # one heading time series per speed for the plot (the first seed's run)
         result = score_dynamic(run, scenario, lamp_map, heading_plot=scenario.seed == 1)

@@ -128,6 +128,13 @@ class LocalizerConfig:
     attitude_aiding_period_s : float
         Shortest interval between two heading aids (the heading an accepted lamp shows,
         for the compensator's ``attitude_aiding``), s; 0 = none.
+    attitude_aiding_calibration_inflation : float
+        Factor on the calibration's covariance (raw images,
+        :func:`~train_localizer.core.fix.calibration_covariance`) in the attitude an aid
+        reports: that error is the same in every aid (a biased range moves the lamp's
+        chainage and with it the heading its direction shows, 0.35° per 0.4 px of
+        disparity 9 m ahead), but the compensator fuses aids as independent; weighting
+        it as if this many aids shared it keeps it from averaging it into its heading.
     tilt_leak_time_s : float
         Time over which the gravity leak of the pitch error (g·σ_pitch, σ from
         ``imu/data``) may wander; sets the extra bias random walk, s; 0 = off.
@@ -175,6 +182,7 @@ class LocalizerConfig:
     tilt_leak_time_s: float = 5.0
     systematic_weight_inflation: float = 3.0
     attitude_aiding_period_s: float = 0.2
+    attitude_aiding_calibration_inflation: float = 5.0
     initial_chainage_m: float = float('nan')
     initial_chainage_sigma_m: float = 1.0
     initial_speed_mps: float = float('nan')
@@ -745,7 +753,8 @@ class Localizer:
         if self._last_aid_ns is not None and abs(prep.t_ns - self._last_aid_ns) < period * NS_PER_S:
             return
         dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
-                                      cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
+                                      cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix),
+                                      cfg.attitude_aiding_calibration_inflation)
         cov = 0.5 * (cov + cov.T)
         if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
                 and np.all(np.linalg.eigvalsh(cov) > 0.0)):

@@ -9,9 +9,11 @@ left image (new tracks: moved as earlier lamps moved from the same spot height,
 :func:`path_prediction`) and own one :class:`~vlc_decoder.core.assembly.PacketAssembler`
 each.
 """
+import dataclasses
 from dataclasses import dataclass, field
 import itertools
 import logging
+import math
 
 import numpy as np
 
@@ -195,8 +197,67 @@ def pair_spots(left, right, max_disparity_px, rectify=None):
     return pairs
 
 
-def combine_profiles(left, right):
+#: Raw images: the right camera's rows run up to this many rows late or early (its trigger
+#: skew, 2-40 us on the realistic rig, unknown to the receivers: 1.3 rows of 30 us); the
+#: lag is measured between the two profiles within it (:func:`profile_lag_rows`).
+MAX_PROFILE_LAG_ROWS = 3
+#: Fewest overlapping rows on which a lag is measured; else the running estimate.
+MIN_LAG_OVERLAP_ROWS = 12
+#: Measured lags kept for the running estimate (the median of these).
+PROFILE_LAG_MEMORY = 64
+
+
+def profile_lag_rows(a, b, max_rows=MAX_PROFILE_LAG_ROWS):
+    """Lag ``s`` (rows, fractional) with ``b.level(r) ≈ a.level(r + s)``: the normalised
+    cross-correlation of the two profiles (0 off … 1 on, the chips, no envelope) at
+    integer lags within ±``max_rows``, refined by a parabola through the peak. None when
+    the profiles overlap on fewer than :data:`MIN_LAG_OVERLAP_ROWS` rows at some lag or
+    show no chips.
+    """
+    la = dict(zip(a.rows.tolist(), a.level))
+    scores = []
+    for k in range(-max_rows, max_rows + 1):
+        pairs = [(la[r + k], lv) for r, lv in zip(b.rows.tolist(), b.level) if r + k in la]
+        if len(pairs) < MIN_LAG_OVERLAP_ROWS:
+            return None
+        x, y = np.array(pairs).T
+        x, y = x - x.mean(), y - y.mean()
+        norm = math.sqrt(float(x @ x) * float(y @ y))
+        if not norm > 0.0:
+            return None
+        scores.append(float(x @ y) / norm)
+    i = int(np.argmax(scores))
+    shift = float(i - max_rows)
+    if 0 < i < len(scores) - 1:
+        c0, c1, c2 = scores[i - 1], scores[i], scores[i + 1]
+        den = c0 - 2.0 * c1 + c2
+        if den < 0.0:
+            shift += 0.5 * (c0 - c2) / den
+    return shift
+
+
+def _on_left_rows(spot, lag):
+    """``spot`` (right image) resampled onto the left image's rows: its row r shows the
+    left row r + ``lag``.
+    """
+    rows = np.arange(math.ceil(spot.rows[0] + lag), math.floor(spot.rows[-1] + lag) + 1)
+    if rows.size == 0:
+        return spot
+    return dataclasses.replace(spot, rows=rows, level=np.interp(rows - lag, spot.rows,
+                                                                spot.level),
+                               weight=np.interp(rows - lag, spot.rows, spot.weight))
+
+
+def combine_profiles(left, right, align=False, lag_rows=None):
     """One row profile from a stereo pair of spots (either may be None).
+
+    ``align`` (raw images, whose right camera is triggered a few microseconds off the
+    left one): the right profile is moved onto the left one's rows by the lag the two
+    show (:func:`profile_lag_rows`; where they cannot show it, ``lag_rows``, the
+    tracker's running estimate) before they are averaged, and a right profile used alone
+    by ``lag_rows``, so that every profile of a track runs on one clock; averaged row by
+    row, a lag of 40 us (0.8 chip) smeared the chips of every lamp and no UID was
+    decoded.
 
     Returns rows (R,), level (R,), weight (R,) and a label of the source used.
     """
@@ -206,14 +267,32 @@ def combine_profiles(left, right):
     if len(use) == 1:
         s = use[0]
         label = 'left' if s is left else 'right'
+        if align and s is right and lag_rows:
+            s = _on_left_rows(s, lag_rows)
         return s.rows, s.level, s.weight, label + ('_cut' if s.cut else '')
     a, b = use
+    if align:
+        lag = profile_lag_rows(a, b)
+        if lag is None:
+            lag = lag_rows
+        if lag is None:
+            label = 'left' if a is left else 'right'
+            return a.rows, a.level, a.weight, label + ('_cut' if a.cut else '')
+        if lag != 0.0:
+            # b's row r shows a's row r + lag: b resampled on a's rows
+            on = (a.rows - lag >= b.rows[0]) & (a.rows - lag <= b.rows[-1])
+            if not np.any(on):
+                label = 'left' if a is left else 'right'
+                return a.rows, a.level, a.weight, label + ('_cut' if a.cut else '')
+            b = dataclasses.replace(
+                b, rows=a.rows[on], level=np.interp(a.rows[on] - lag, b.rows, b.level),
+                weight=np.interp(a.rows[on] - lag, b.rows, b.weight))
     lo, hi = min(a.rows[0], b.rows[0]), max(a.rows[-1], b.rows[-1])
     rows = np.arange(lo, hi + 1)
     total_w = np.zeros(len(rows))
     total_y = np.zeros(len(rows))
     best_w = np.zeros(len(rows))
-    for s in use:
+    for s in (a, b):
         idx = s.rows - lo
         total_w[idx] += s.weight
         total_y[idx] += s.weight * s.level
@@ -240,6 +319,10 @@ class LampTracker:
         self.max_disparity_px = max_disparity_px
         # raw images: (left, right) raw → rectified pixel maps for the stereo pairing
         self.rectify = None
+        # raw images: the lags (rows) measured between whole left and right profiles;
+        # their median moves the profiles that cannot show one (the trigger skew is the
+        # camera's, the same for every lamp)
+        self.profile_lags = []
         self.tracks = []
         self._ids = itertools.count(1)
         self.anomalies = {}          # uid -> count of tracks that decoded it
@@ -262,6 +345,20 @@ class LampTracker:
         """
         return (self.last_stamp_ns is not None and self.last_stamp_ns - int(stamp_ns)
                 > self.cfg.stamp_jump_reset_s * 1e9)
+
+    def _lag_estimate(self):
+        """Median of the measured profile lags (rows), None before any."""
+        return float(np.median(self.profile_lags)) if self.profile_lags else None
+
+    def _profile_lag(self, spot_l, spot_r):
+        """Raw images: record the lag of a pair of whole spots; the running estimate."""
+        if (self.rectify is not None and spot_l is not None and spot_r is not None
+                and not spot_l.cut and not spot_r.cut):
+            lag = profile_lag_rows(spot_l, spot_r)
+            if lag is not None:
+                self.profile_lags.append(lag)
+                del self.profile_lags[:-PROFILE_LAG_MEMORY]
+        return self._lag_estimate()
 
     def process(self, stamp_ns, left_image, right_image):
         """Decode one stereo frame (mono8 arrays of equal shape). Returns LampRecords."""
@@ -303,7 +400,8 @@ class LampTracker:
             spot = spot_l if spot_l is not None else spot_r
             track.history.append((stamp_ns, u, v, spot.height_px))
             del track.history[:-PATH_MAX_POINTS]
-            rows, level, weight, source = combine_profiles(spot_l, spot_r)
+            rows, level, weight, source = combine_profiles(
+                spot_l, spot_r, self.rectify is not None, self._profile_lag(spot_l, spot_r))
             was_confirmed = track.assembler.state == CONFIRMED
             track.assembler.add(stamp_ns, rows, level, weight)
             records.append(self._record(track, spot_l, spot_r, rows, source, stamp_ns,
@@ -372,7 +470,9 @@ class LampTracker:
         # to another lamp
         checked = []
         for dist, t_index, o_index, tight in sorted(pairs):
-            rows, level, weight, _ = combine_profiles(*observations[o_index])
+            rows, level, weight, _ = combine_profiles(*observations[o_index],
+                                                      self.rectify is not None,
+                                                      self._lag_estimate())
             if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight, tight):
                 checked.append((dist, t_index, o_index))
         pairs = checked
