@@ -303,5 +303,6 @@ def test_vision_attitude_of_raw_images_carries_the_calibration_error():
     dtheta, cov_aid = vision_attitude(p_cam, cov, LAMP.position_m, R, GEOM, FixConfig())
     assert np.linalg.norm(dtheta) > 0.2 * DEG             # the true attitude error is 0
     assert dtheta @ np.linalg.solve(cov_aid, dtheta) > 25.0          # and it claims > 5σ
-    raw, cov_raw = vision_attitude(p_cam, cov, LAMP.position_m, R, geom, FixConfig(), 25.0)
+    raw, cov_raw = vision_attitude(p_cam, cov, LAMP.position_m, R, geom, FixConfig(),
+                                   calibration_scale=25.0)
     assert raw @ np.linalg.solve(cov_raw, raw) < 1.0 / 25.0 * 9.0    # within 3σ/√25
