@@ -196,6 +196,16 @@ def test_cpu_and_peak_rss_files_are_parsed_and_summed_per_run(tmp_path):
     assert figures['graph_rss_mib'] == {'median': 411.0, 'max': 422.0}
     assert 'Peak RSS per node' in text and 'whole graph 411 (largest run 422) = a 101, b 310' \
         in text
+    # where the ready phase went: each awaited topic's median, the last three named
+    for k, run in enumerate(runs):
+        run['timing']['ready_topics'] = {'/imu/data': 0.5, '/vlc/lamps': 1.0 + k,
+                                         '/clock': 2.0 + k, '/ground_truth/pose': 3.0}
+    text, figures = report.timing_summary(runs)
+    assert list(figures['ready_topics_s']) == ['/imu/data', '/vlc/lamps',
+                                               '/ground_truth/pose', '/clock']
+    assert figures['ready_topics_s']['/clock'] == 3.5
+    assert text.endswith('(median s since the start): /vlc/lamps 2.50, '
+                         '/ground_truth/pose 3.00, /clock 3.50.')
     # runs without the memory figures (exec-spawned nodes): no RSS sentence
     text, figures = report.timing_summary(runs[3:])
     assert 'RSS' not in text and 'rss_mib' not in figures

@@ -394,7 +394,18 @@ def timing_summary(results):
            f'server counted in each node, so the sum is an upper bound): whole graph '
            f'{np.median(graph_rss):.0f} (largest run {max(graph_rss):.0f}) = ' + ', '.join(
                f'{k} {v:.0f}' for k, v in rss.items()) if rss else '') + '.')
+    ready = {}
+    for t in timings:
+        for topic, at in t.get('ready_topics', {}).items():
+            ready.setdefault(topic, []).append(at)
+    ready = dict(sorted(((topic, float(np.median(v))) for topic, v in ready.items()),
+                        key=lambda item: item[1]))
+    if ready:
+        text += (' Ready phase, the last awaited subscriptions (median s since the start): '
+                 + ', '.join(f'{k} {v:.2f}' for k, v in list(ready.items())[-3:]) + '.')
     summary = {'phases_s': phases, 'cpu_s': cpu, 'runs': len(timings)}
+    if ready:
+        summary['ready_topics_s'] = ready
     if rss:
         summary.update(rss_mib=rss, rss_max_mib=rss_max,
                        graph_rss_mib={'median': float(np.median(graph_rss)),

@@ -329,6 +329,11 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
         mark('started')
         missing = probe.wait_for_subscribers(required, READY_TIMEOUT_S, abort=died)
         mark('ready')
+        # when each awaited topic had its subscribers (s since the start): the last ones
+        # are what the ready phase waited for
+        timing['ready_topics'] = {topic: round(at - t0, 3)
+                                  for topic, at in sorted(probe.satisfied_at.items(),
+                                                          key=lambda item: item[1])}
         if missing:
             timing['problems'].append(f'not ready: {missing}')
         # another graph on this domain (another evaluation, a test) would mix with ours
