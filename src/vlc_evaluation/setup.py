@@ -35,6 +35,7 @@ setup(
             'curvature_benchmark = vlc_evaluation.benchmarks.curvature:main',
             'reacquisition_benchmark = vlc_evaluation.benchmarks.reacquisition:main',
             'two_host_benchmark = vlc_evaluation.benchmarks.two_hosts:main',
+            'receivers_benchmark = vlc_evaluation.benchmarks.receivers:main',
             'companion_score = vlc_evaluation.companion_scoring:main',
             'render_demo_images = vlc_evaluation.demo_images:main',
             'sample_bag = vlc_evaluation.sample_bag:main',

@@ -175,3 +175,37 @@ def test_update_markdown_replaces_only_the_marked_section(tmp_path):
     assert '--protocol full' in second and '--protocol demo' not in second
     results = (tmp_path / 'docs' / 'RESULTS.md').read_text()
     assert results.count(report.BEGIN_MARK) == 1 and '--protocol full' in results
+
+
+def test_cpu_and_peak_rss_files_are_parsed_and_summed_per_run(tmp_path):
+    from vlc_evaluation import graph_runner
+    (tmp_path / 'a_node.log.cpu').write_text('1.250 0.250 204800\n')
+    (tmp_path / 'b_node.log.cpu').write_text('0.500 0.100\n')      # written before RSS
+    (tmp_path / 'c_node.log.cpu').write_text('garbage\n')
+    assert graph_runner.read_cpu_seconds(tmp_path) == {'a_node': 1.5, 'b_node': 0.6}
+    assert graph_runner.read_peak_rss_mib(tmp_path) == {'a_node': 200.0}
+    assert 1024 < graph_runner.peak_rss_kib() < 4 * 1024 * 1024   # this process, KiB
+    phases = {'started': 0.3, 'ready': 2.7, 'sim_started': 2.8, 'camera_done': 6.0,
+              'drained': 6.4, 'stopped': 6.6}
+    runs = [{'timing': dict(phases, cpu_s={'a': 1.0, 'b': 2.0},
+                            rss_mib={'a': 100.0 + k, 'b': 300.0 + 10 * k})}
+            for k in range(3)] + [{'timing': dict(phases, cpu_s={'a': 1.0})}]
+    text, figures = report.timing_summary(runs)
+    assert figures['rss_mib'] == {'a': 101.0, 'b': 310.0}
+    assert figures['rss_max_mib'] == {'a': 102.0, 'b': 320.0}
+    assert figures['graph_rss_mib'] == {'median': 411.0, 'max': 422.0}
+    assert 'Peak RSS per node' in text and 'whole graph 411 (largest run 422) = a 101, b 310' \
+        in text
+    # where the ready phase went: each awaited topic's median, the last three named
+    for k, run in enumerate(runs):
+        run['timing']['ready_topics'] = {'/imu/data': 0.5, '/vlc/lamps': 1.0 + k,
+                                         '/clock': 2.0 + k, '/ground_truth/pose': 3.0}
+    text, figures = report.timing_summary(runs)
+    assert list(figures['ready_topics_s']) == ['/imu/data', '/vlc/lamps',
+                                               '/ground_truth/pose', '/clock']
+    assert figures['ready_topics_s']['/clock'] == 3.5
+    assert text.endswith('(median s since the start): /vlc/lamps 2.50, '
+                         '/ground_truth/pose 3.00, /clock 3.50.')
+    # runs without the memory figures (exec-spawned nodes): no RSS sentence
+    text, figures = report.timing_summary(runs[3:])
+    assert 'RSS' not in text and 'rss_mib' not in figures

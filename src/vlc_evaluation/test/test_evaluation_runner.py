@@ -42,6 +42,8 @@ def test_forked_entry_point_gets_argv_log_and_cpu_file(spawner, tmp_path):
     assert proc.wait(30) == 0
     assert json.loads((graph.log_dir / 'tool.log').read_text()) == {'b': [1, 2]}
     assert 'tool' in graph_runner.read_cpu_seconds(graph.log_dir)
+    # its peak resident memory beside the CPU: a Python process, tens of MiB
+    assert 5.0 < graph_runner.read_peak_rss_mib(graph.log_dir)['tool'] < 4096.0
 
 
 def test_forked_process_in_its_own_group_stops_on_sigint(spawner, tmp_path):

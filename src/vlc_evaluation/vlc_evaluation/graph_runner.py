@@ -117,11 +117,12 @@ def _run_entry_point(entry, argv, env, log_path):
     try:
         sys.exit(main())
     finally:
-        # CPU of this node (the fork server's children are not the runner's children,
-        # so the runner's RUSAGE_CHILDREN cannot see them)
+        # CPU and peak resident memory of this node (the fork server's children are not
+        # the runner's children, so the runner's RUSAGE_CHILDREN cannot see them)
         usage = resource.getrusage(resource.RUSAGE_SELF)
         with open(log_path + '.cpu', 'w', encoding='utf-8') as stream:
-            stream.write(f'{usage.ru_utime:.3f} {usage.ru_stime:.3f}\n')
+            stream.write(f'{usage.ru_utime:.3f} {usage.ru_stime:.3f} '
+                         f'{peak_rss_kib(usage)}\n')
 
 
 def _exec_child_setup(nice):
@@ -133,6 +134,36 @@ def _exec_child_setup(nice):
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     if nice:
         os.nice(int(nice))
+
+
+def peak_rss_kib(usage=None):
+    """Peak resident set size of the calling process, KiB: ``VmHWM`` of /proc/self/status (the
+    pages it shares with the fork server, the imported libraries, counted in full), else
+    ``ru_maxrss`` of ``usage`` (getrusage RUSAGE_SELF).
+    """
+    try:
+        with open('/proc/self/status', encoding='ascii') as stream:
+            for line in stream:
+                if line.startswith('VmHWM:'):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    usage = usage or resource.getrusage(resource.RUSAGE_SELF)
+    return int(usage.ru_maxrss)
+
+
+def read_peak_rss_mib(log_dir):
+    """``{node: peak RSS in MiB}`` written by nodes started with ``fork`` (the third
+    field of ``<node>.log.cpu``; files without it are left out).
+    """
+    out = {}
+    for path in pathlib.Path(log_dir).glob('*.log.cpu'):
+        fields = path.read_text().split()
+        try:
+            out[path.name[:-len('.log.cpu')]] = round(int(fields[2]) / 1024.0, 1)
+        except (IndexError, ValueError):
+            continue
+    return out
 
 
 def read_cpu_seconds(log_dir):

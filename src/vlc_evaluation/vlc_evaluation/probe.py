@@ -45,6 +45,7 @@ class GraphProbe:
                          enable_rosout=False)
         self._lock = threading.Lock()
         self._gate = []
+        self.satisfied_at = {}
         # Subscriptions are created and destroyed by the executor thread only (between
         # two waits), never while it waits on them.
         self._requests = queue.Queue()
@@ -122,11 +123,18 @@ class GraphProbe:
     def wait_for_subscribers(self, required, timeout_s, abort=None):
         """Wait until every topic in ``required`` ({topic: count}) has that many
         subscribers; returns the still-missing ones ({} = ready). ``abort()`` → stop early.
+        ``satisfied_at`` then holds the monotonic time at which each topic was first seen
+        with all its subscribers (where the wait went).
         """
         deadline = time.monotonic() + timeout_s
+        self.satisfied_at = {}
         while True:
             missing = self.missing_subscribers(required)
-            if not missing or time.monotonic() > deadline or (abort and abort()):
+            now = time.monotonic()
+            for topic in required:
+                if topic not in missing:
+                    self.satisfied_at.setdefault(topic, now)
+            if not missing or now > deadline or (abort and abort()):
                 return missing
             time.sleep(0.02)
 

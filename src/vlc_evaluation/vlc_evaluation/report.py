@@ -359,8 +359,9 @@ PHASES = (('start', None, 'started'), ('ready', 'started', 'ready'),
 
 
 def timing_summary(results):
-    """Where the wall time of a run goes (median per phase, s) and each node's CPU
-    (median, s), over the kept attempts of ``results``.
+    """Where the wall time of a run goes (median per phase, s), each node's CPU
+    (median, s) and peak RSS (median and largest, MiB) and the whole graph's (the sum of
+    a run's nodes: median and largest run), over the kept attempts of ``results``.
     """
     timings = [r['timing'] for r in results if r.get('timing', {}).get('stopped')]
     if not timings:
@@ -376,11 +377,40 @@ def timing_summary(results):
         for node, seconds in t.get('cpu_s', {}).items():
             cpu.setdefault(node, []).append(seconds)
     cpu = {node: float(np.median(v)) for node, v in sorted(cpu.items())}
+    rss, graph_rss = {}, []
+    for t in timings:
+        peaks = t.get('rss_mib', {})
+        for node, mib in peaks.items():
+            rss.setdefault(node, []).append(mib)
+        if peaks:
+            graph_rss.append(sum(peaks.values()))
+    rss_max = {node: float(np.max(v)) for node, v in sorted(rss.items())}
+    rss = {node: float(np.median(v)) for node, v in sorted(rss.items())}
     text = ('Wall time per run (median, s): ' + ', '.join(
         f'{k} {v:.2f}' for k, v in phases.items() if v is not None)
         + (f'. CPU per run (median, s): {sum(cpu.values()):.2f} = ' + ', '.join(
-            f'{k} {v:.2f}' for k, v in cpu.items()) if cpu else '') + '.')
-    return text, {'phases_s': phases, 'cpu_s': cpu, 'runs': len(timings)}
+            f'{k} {v:.2f}' for k, v in cpu.items()) if cpu else '')
+        + (f'. Peak RSS per node (median of the runs, MiB; pages shared with the fork '
+           f'server counted in each node, so the sum is an upper bound): whole graph '
+           f'{np.median(graph_rss):.0f} (largest run {max(graph_rss):.0f}) = ' + ', '.join(
+               f'{k} {v:.0f}' for k, v in rss.items()) if rss else '') + '.')
+    ready = {}
+    for t in timings:
+        for topic, at in t.get('ready_topics', {}).items():
+            ready.setdefault(topic, []).append(at)
+    ready = dict(sorted(((topic, float(np.median(v))) for topic, v in ready.items()),
+                        key=lambda item: item[1]))
+    if ready:
+        text += (' Ready phase, the last awaited subscriptions (median s since the start): '
+                 + ', '.join(f'{k} {v:.2f}' for k, v in list(ready.items())[-3:]) + '.')
+    summary = {'phases_s': phases, 'cpu_s': cpu, 'runs': len(timings)}
+    if ready:
+        summary['ready_topics_s'] = ready
+    if rss:
+        summary.update(rss_mib=rss, rss_max_mib=rss_max,
+                       graph_rss_mib={'median': float(np.median(graph_rss)),
+                                      'max': float(max(graph_rss))})
+    return text, summary
 
 
 def plot_heading(results, path):

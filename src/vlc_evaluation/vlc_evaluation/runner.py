@@ -34,7 +34,13 @@ import yaml
 from vlc_bags.bagio import iter_raw, open_bag
 from vlc_bags.typesupport import header_stamp_ns
 from vlc_common.stamps import stamp_to_ns
-from vlc_evaluation.graph_runner import ForkSpawner, GraphRun, read_cpu_seconds, workspace_install
+from vlc_evaluation.graph_runner import (
+    ForkSpawner,
+    GraphRun,
+    read_cpu_seconds,
+    read_peak_rss_mib,
+    workspace_install,
+)
 from vlc_evaluation.latency import READOUT_S
 
 LOG = logging.getLogger(__name__)
@@ -258,8 +264,9 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
 
     With ``scenario.replay_bag`` the rig is replaced by ``bag_player`` replaying that
     bag's sensor topics at ``realtime_factor``. ``timing``: wall seconds from the start
-    to each phase's end, ``cpu_s`` per node (``fork`` only), and ``problems`` (a list of
-    strings: readiness timeout, a node's non-zero exit, simulated time not starting).
+    to each phase's end, ``cpu_s`` and ``rss_mib`` (peak resident memory) per node
+    (``fork`` only), and ``problems`` (a list of strings: readiness timeout, a node's
+    non-zero exit, simulated time not starting).
     """
     from vlc_evaluation.probe import GraphProbe
     out_dir = pathlib.Path(out_dir)
@@ -322,6 +329,11 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
         mark('started')
         missing = probe.wait_for_subscribers(required, READY_TIMEOUT_S, abort=died)
         mark('ready')
+        # when each awaited topic had its subscribers (s since the start): the last ones
+        # are what the ready phase waited for
+        timing['ready_topics'] = {topic: round(at - t0, 3)
+                                  for topic, at in sorted(probe.satisfied_at.items(),
+                                                          key=lambda item: item[1])}
         if missing:
             timing['problems'].append(f'not ready: {missing}')
         # another graph on this domain (another evaluation, a test) would mix with ours
@@ -400,6 +412,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
     if lane.abort.is_set():
         raise RunAborted(scenario.name)
     timing['cpu_s'] = read_cpu_seconds(graph.log_dir)
+    timing['rss_mib'] = read_peak_rss_mib(graph.log_dir)
     timing['exit_codes'] = codes
     bad = {n: c for n, c in codes.items() if c not in (0, None)}
     if bad:

@@ -7,6 +7,7 @@ for bit as it was.
 """
 import dataclasses
 import hashlib
+import pathlib
 
 import cv2
 import numpy as np
@@ -412,3 +413,19 @@ def test_a_realistic_installation_renders_raw_images_of_the_true_lamps(nominal_m
     left = stereo.left.rectify_points(np.array([t.uv_left]))[0]
     right = stereo.right.rectify_points(np.array([t.uv_right]))[0]
     assert 1e-4 < abs(left[1] - right[1]) < 3.0
+
+
+def test_profiles_file_is_parsed_once_per_content_and_each_caller_gets_a_copy(tmp_path):
+    from vlc_stereo_camera.core import installation
+    first = load_profiles()
+    second = load_profiles()
+    assert first == second and first is not second
+    assert first['ideal'].sections is not second['ideal'].sections
+    # a changed file is read again
+    path = tmp_path / 'profiles.yaml'
+    shipped = pathlib.Path(installation.default_profiles_path())
+    data = yaml.safe_load(shipped.read_text(encoding='utf-8'))
+    path.write_text(yaml.safe_dump(data))
+    assert set(load_profiles(path)) == set(first)
+    path.write_text(yaml.safe_dump({'ideal': data['ideal']}))
+    assert set(load_profiles(path)) == {'ideal'}

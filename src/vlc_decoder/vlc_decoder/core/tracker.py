@@ -125,14 +125,14 @@ def path_prediction(paths, height_px, dt_s):
             continue
         # the first segment reaching the height (heights grow along the path, not
         # strictly: the envelope fit is noisy)
-        i = int(np.clip(np.searchsorted(np.maximum.accumulate(heights), height_px) - 1,
-                        0, len(times) - 2))
+        i = min(max(int(np.searchsorted(np.maximum.accumulate(heights), height_px)) - 1, 0),
+                len(times) - 2)
         dh = heights[i + 1] - heights[i]
-        lam = float(np.clip((height_px - heights[i]) / dh, 0.0, 1.0)) if dh > 0 else 0.0
+        lam = float(min(max((height_px - heights[i]) / dh, 0.0), 1.0)) if dh > 0 else 0.0
         tau = times[i] + lam * (times[i + 1] - times[i])
         here = pos[i] + lam * (pos[i + 1] - pos[i])
         target = tau + dt_s
-        j = int(np.clip(np.searchsorted(times, target) - 1, 0, len(times) - 2))
+        j = min(max(int(np.searchsorted(times, target)) - 1, 0), len(times) - 2)
         frac = (target - times[j]) / max(times[j + 1] - times[j], 1e-9)
         moves.append(pos[j] + frac * (pos[j + 1] - pos[j]) - here)
         if len(moves) == PATH_PRIOR_PATHS:

@@ -29,7 +29,9 @@ the rest, and a lamp's draw does not depend on the map around it.
 The ``ideal`` profile draws nothing: truth = belief = the nominal files and the ideal
 rectified pair (the rig as it always was).
 """
+import copy
 from dataclasses import dataclass, field
+import functools
 import math
 import pathlib
 
@@ -203,6 +205,14 @@ def load_profiles(path=''):
         text = pathlib.Path(path).read_text(encoding='utf-8')
     except OSError as exc:
         raise ProfileError(path, '(file)', f'cannot read: {exc.strerror}') from None
+    # a node asks several times at start-up (each profile field): the same text is
+    # parsed once, and each caller gets its own copy (a profile holds dicts)
+    return copy.deepcopy(_parse_profiles(path, text))
+
+
+@functools.lru_cache(maxsize=8)
+def _parse_profiles(path, text):
+    """:func:`load_profiles` of the file ``path`` whose content is ``text``."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
