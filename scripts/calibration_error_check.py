@@ -20,16 +20,12 @@ import numpy as np
 
 from vlc_calibration.stereo_calibrate import main as stereo_calibrate
 from vlc_common.core.calibration import load_ros_stereo
+from vlc_evaluation.installation_calibration import BOARD, EDGE_POINTS
 from vlc_stereo_camera.core.checkerboard import (
-    Checkerboard,
     StereoBoardRenderer,
     calibration_poses,
 )
 from vlc_stereo_camera.core.installation import draw_optics, load_profile
-
-BOARD = Checkerboard((15, 10), 0.025)
-EDGE_POINTS = np.array([[-0.5, -0.5], [1279.5, -0.5], [-0.5, 719.5], [1279.5, 719.5],
-                        [639.5, -0.5], [639.5, 719.5], [-0.5, 359.5], [1279.5, 359.5]])
 
 
 def displacement(camera, uv):

@@ -18,6 +18,7 @@ from spot_locator.core.locator import FLAG_RECTIFIED, LocatorConfig, SpotLocator
 from train_localizer.conversions import CameraInfoIntrinsics
 from train_localizer.core.fix import RigGeometry, triangulate
 from train_localizer.core.join import JoinConfig, join_frame
+from vlc_common.camera_info import camera_info_msg
 from vlc_common.core.camera import CameraModel
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.records import LAMP_DTYPE
@@ -41,12 +42,7 @@ def lamp_map():
 
 
 def _msg(info):
-    return CameraInfo(width=int(info['width']), height=int(info['height']),
-                      distortion_model=info.get('distortion_model') or 'plumb_bob',
-                      d=[float(x) for x in np.ravel(info['D'])],
-                      k=[float(x) for x in np.ravel(info['K'])],
-                      r=[float(x) for x in np.ravel(info['R'])],
-                      p=[float(x) for x in np.ravel(info['P'])])
+    return camera_info_msg(info)
 
 
 def _as_if_rectified(msg):

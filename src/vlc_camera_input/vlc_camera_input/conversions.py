@@ -5,9 +5,10 @@ import array
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import Image
 
 from vlc_camera_input.core.sbs import decode_compressed
+from vlc_common.camera_info import camera_info_msg  # noqa: F401 (here for its callers)
 from vlc_common.images import ImageError, image_to_array
 
 __all__ = ['ImageError', 'camera_info_msg', 'compressed_to_grey', 'diagnostics',
@@ -39,18 +40,6 @@ def image_msg(image, header):
     data.frombytes(image.data)
     msg.data = data
     return msg
-
-
-def camera_info_msg(info, header):
-    """sensor_msgs/CameraInfo from a ``StereoCalibration.camera_info_dicts()`` entry
-    (width, height, distortion_model, K, D, R, P).
-    """
-    return CameraInfo(header=header, height=int(info['height']), width=int(info['width']),
-                      distortion_model=str(info['distortion_model']),
-                      d=[float(v) for v in np.ravel(info['D'])],
-                      k=[float(v) for v in np.ravel(info['K'])],
-                      r=[float(v) for v in np.ravel(info['R'])],
-                      p=[float(v) for v in np.ravel(info['P'])])
 
 
 def diagnostics(stamp, name, hardware_id, level, message, values):

@@ -151,3 +151,19 @@ def stereo_camera_publishers(node):
             [node.create_publisher(CameraInfo, f'stereo/{side}/camera_info', latched)
              for side in sides])
 
+
+def camera_info_msg(info, header=None):
+    """sensor_msgs/CameraInfo from a camera_info dict (``width``, ``height``,
+    ``distortion_model``, ``K``, ``D``, ``R``, ``P``, as ``camera_info_dicts()`` of the
+    rig and of a loaded calibration give them), with ``header``.
+    """
+    from sensor_msgs.msg import CameraInfo
+    from std_msgs.msg import Header
+    return CameraInfo(header=header if header is not None else Header(),
+                      height=int(info['height']), width=int(info['width']),
+                      distortion_model=str(info.get('distortion_model') or 'plumb_bob'),
+                      d=[float(v) for v in np.ravel(info['D'])],
+                      k=[float(v) for v in np.ravel(info['K'])],
+                      r=[float(v) for v in np.ravel(info['R'])],
+                      p=[float(v) for v in np.ravel(info['P'])])
+

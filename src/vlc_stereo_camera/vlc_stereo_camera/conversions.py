@@ -28,8 +28,9 @@ import array
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 import numpy as np
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import Image
 
+from vlc_common.camera_info import camera_info_msg  # noqa: F401 (here for its callers)
 from vlc_common.pointcloud import cloud_to_records, records_to_cloud  # noqa: F401 (re-exported)
 from vlc_common.stamps import header, ns_to_stamp  # noqa: F401 (re-exported)
 
@@ -71,16 +72,6 @@ def image_to_array(msg):
     if msg.step < msg.width or buf.size < msg.step * msg.height or msg.height == 0:
         raise ValueError(f'image data {buf.size} B does not fit {msg.height}x{msg.step}')
     return buf[:msg.step * msg.height].reshape(msg.height, msg.step)[:, :msg.width]
-
-
-def camera_info_msg(info, hdr):
-    """CameraInfo from a :meth:`StereoRig.camera_info_dicts` entry."""
-    return CameraInfo(header=hdr, height=int(info['height']), width=int(info['width']),
-                      distortion_model=info['distortion_model'],
-                      d=[float(v) for v in info['D']],
-                      k=[float(v) for v in np.ravel(info['K'])],
-                      r=[float(v) for v in np.ravel(info['R'])],
-                      p=[float(v) for v in np.ravel(info['P'])])
 
 
 def pose_msg(position_m, quat_xyzw, hdr):

@@ -36,13 +36,8 @@ NODES = ('decoder', 'spot')
 
 
 def _camera_info(info):
-    from sensor_msgs.msg import CameraInfo
-    return CameraInfo(width=int(info['width']), height=int(info['height']),
-                      distortion_model=info.get('distortion_model') or 'plumb_bob',
-                      d=[float(x) for x in np.ravel(info['D'])],
-                      k=[float(x) for x in np.ravel(info['K'])],
-                      r=[float(x) for x in np.ravel(info['R'])],
-                      p=[float(x) for x in np.ravel(info['P'])])
+    from vlc_common.camera_info import camera_info_msg
+    return camera_info_msg(info)
 
 
 def _image(array, stamp_ns, frame_id):
