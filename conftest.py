@@ -125,8 +125,9 @@ class _Launcher:
 
     @staticmethod
     def rig_listened(node, clock_subscribers=1):
-        """True once the rig's truth is seen and ``clock_subscribers`` nodes (the IMU, ...)
-        and the compensator's localizer listen: the rig's image gate may open.
+        """True once the rig's truth is seen, ``clock_subscribers`` nodes (the IMU, ...)
+        listen to ``/clock`` and a node (the localizer) listens to ``imu/data``: the rig's
+        image gate may open.
         """
         return (node.count_subscribers('/clock') >= clock_subscribers
                 and node.count_publishers('ground_truth/pose') >= 1

@@ -8,7 +8,6 @@ FrameJoiner). Outputs: PoseStamped, DiagnosticStatus.
 from collections import deque
 import time
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 
@@ -19,6 +18,7 @@ from train_localizer.conversions import (  # noqa: F401
     ns_to_stamp,
     stamp_to_ns,
 )
+from vlc_common.diagnostics import diagnostic_status  # noqa: F401 (here for the nodes)
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 
 RSSI_FIELDS = ('uid', 'power_w')
@@ -67,14 +67,6 @@ def pose_stamped(stamp_ns, position_m, quat_xyzw, frame_id):
     p.x, p.y, p.z = (float(v) for v in position_m)
     q.x, q.y, q.z, q.w = (float(v) for v in quat_xyzw)
     return msg
-
-
-def diagnostic_status(name, hardware_id, level, message, values):
-    """DiagnosticStatus with ``values`` (dict) as string KeyValues."""
-    status = DiagnosticStatus(level=bytes([int(level)]), name=name, message=message,
-                              hardware_id=hardware_id)
-    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
-    return status
 
 
 class CpuTimer:

@@ -46,7 +46,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
 from companion_localizers import conversions
@@ -60,6 +60,7 @@ from companion_localizers.core.curvature import (
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
 from vlc_common.core.rotations import matrix_to_quat_xyzw, rpy_to_matrix
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import IMU_QOS
 from vlc_common.process import run_node
 from vlc_common.stamps import stamp_to_s
 from vlc_common.throttled_log import ThrottledWarnings
@@ -69,7 +70,6 @@ _STR = ParameterType.PARAMETER_STRING
 OK, WARN, ERROR = (level[0] for level in (DiagnosticStatus.OK, DiagnosticStatus.WARN,
                                           DiagnosticStatus.ERROR))
 NS_PER_S = 1_000_000_000
-IMU_QUEUE_DEPTH = 1000      # 2.5 s of a 400 Hz IMU
 
 # name, default, descriptor — documented key by key in config/curvature_node.yaml
 NODE_PARAMETERS = (
@@ -187,12 +187,8 @@ class CurvatureNode(Node):
         self._pub_pose_cov = self.create_publisher(
             PoseWithCovarianceStamped, 'companion/curvature/pose_with_covariance', 10)
         self._pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
-        # Sensor-data QoS (best effort) with a deep queue: a match blocks the executor for
-        # tens of ms, during which a 400 Hz IMU must not overflow a depth-5 queue.
-        imu_qos = QoSProfile(depth=IMU_QUEUE_DEPTH,
-                             reliability=qos_profile_sensor_data.reliability,
-                             durability=qos_profile_sensor_data.durability)
-        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, imu_qos)
+        # a match blocks the executor for tens of ms: the deep IMU queue rides it out
+        self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
         self.create_subscription(Odometry, cfg.odometry_topic, self._on_odometry,
                                  QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics,

@@ -48,7 +48,7 @@ import numpy as np
 from rcl_interfaces.msg import ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
 from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
@@ -64,7 +64,7 @@ from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import PolledSubscription
+from vlc_common.polled import IMU_QOS, PolledSubscription
 from vlc_common.process import run_node
 from vlc_common.stamps import stamp_to_ns
 from vlc_common.throttled_log import ThrottledWarnings
@@ -74,12 +74,6 @@ DEG = math.pi / 180.0
 _ARRAY = ParameterType.PARAMETER_DOUBLE_ARRAY
 _STRING = ParameterType.PARAMETER_STRING
 
-# Sensor-data QoS (best effort) with a deep queue: at 400 Hz a 5-sample queue loses
-# samples whenever the process stalls for 12 ms (measured under load), and 100 (0.25 s)
-# lost 0.75 s of the burst in which a stalled IMU caught up, and 0.29 s while this node
-# worked off a stall's backlog of frames: 1000 holds 2.5 s (about 0.4 MB).
-IMU_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT,
-                     history=HistoryPolicy.KEEP_LAST)
 
 
 _F = AttitudeFilterConfig()

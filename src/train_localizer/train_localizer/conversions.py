@@ -15,7 +15,6 @@ PoseWithCovarianceStamped and Odometry; the integrity status → DiagnosticStatu
 """
 import math
 
-from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 import numpy as np
@@ -23,6 +22,7 @@ import numpy as np
 from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.observation import ImuSample
 from vlc_common.core.records import LAMP_DTYPE, PAIR_DTYPE
+from vlc_common.diagnostics import diagnostic_status  # noqa: F401 (here for the nodes)
 from vlc_common.pointcloud import cloud_to_records  # noqa: F401 (re-exported)
 from vlc_common.stamps import ns_to_stamp, stamp_to_ns  # noqa: F401 (re-exported)
 
@@ -257,11 +257,3 @@ def pose_messages(est, map_frame, base_frame):
     tcov[3, 3] = tcov[4, 4] = tcov[5, 5] = 1e-4
     odom.twist.covariance = [float(v) for v in tcov.ravel()]
     return ps, pwc, odom
-
-
-def diagnostic_status(name, hardware_id, level, message, values):
-    """DiagnosticStatus with ``values`` (dict) as string KeyValues."""
-    status = DiagnosticStatus(level=bytes([int(level)]), name=name, message=message,
-                              hardware_id=hardware_id)
-    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
-    return status

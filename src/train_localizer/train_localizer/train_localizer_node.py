@@ -48,7 +48,7 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from train_localizer import conversions
@@ -72,7 +72,7 @@ from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import PolledSubscription
+from vlc_common.polled import IMU_QOS, PolledSubscription
 from vlc_common.process import run_node
 from vlc_common.throttled_log import ThrottledWarnings
 
@@ -80,12 +80,6 @@ _DEG = math.pi / 180.0
 SPOT_FIELDS = ('u_left', 'v_left', 'u_right', 'v_right')
 LAMP_FIELDS = ('uid',)
 
-# Sensor-data QoS (best effort) with a deep queue: at 400 Hz a 5-sample queue loses
-# samples whenever the process stalls for 12 ms (measured under load), and 100 (0.25 s)
-# lost 0.75 s of the burst in which a stalled IMU caught up, and 0.29 s while this node
-# worked off a stall's backlog of frames: 1000 holds 2.5 s (about 0.4 MB).
-IMU_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT,
-                     history=HistoryPolicy.KEEP_LAST)
 
 
 # name, default, descriptor — documented key by key in config/train_localizer_node.yaml

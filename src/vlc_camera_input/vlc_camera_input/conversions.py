@@ -1,9 +1,8 @@
-"""Messages ↔ arrays for the SBS splitter: camera frames in, mono8 images, camera_info
-and diagnostics out.
+"""Messages ↔ arrays for the SBS splitter: camera frames in, mono8 images and
+camera_info out.
 """
 import array
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from sensor_msgs.msg import Image
 
@@ -11,7 +10,7 @@ from vlc_camera_input.core.sbs import decode_compressed
 from vlc_common.camera_info import camera_info_msg  # noqa: F401 (here for its callers)
 from vlc_common.images import ImageError, image_to_array
 
-__all__ = ['ImageError', 'camera_info_msg', 'compressed_to_grey', 'diagnostics',
+__all__ = ['ImageError', 'camera_info_msg', 'compressed_to_grey',
            'image_msg', 'image_to_grey']
 
 
@@ -39,15 +38,4 @@ def image_msg(image, header):
     data = array.array('B')
     data.frombytes(image.data)
     msg.data = data
-    return msg
-
-
-def diagnostics(stamp, name, hardware_id, level, message, values):
-    """A DiagnosticArray with one status; ``values`` a dict of key → value (str()'d)."""
-    msg = DiagnosticArray()
-    msg.header.stamp = stamp
-    status = DiagnosticStatus(level=level, name=name, message=message,
-                              hardware_id=hardware_id)
-    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
-    msg.status = [status]
     return msg

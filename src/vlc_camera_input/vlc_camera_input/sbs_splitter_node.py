@@ -64,6 +64,7 @@ from vlc_camera_input.core import sbs
 from vlc_camera_input.core.rectify import Rectifier, rectified_camera_info
 from vlc_common.camera_info import stereo_camera_publishers
 from vlc_common.core.calibration import CalibrationError, load_stereo_calibration
+from vlc_common.diagnostics import diagnostic_array
 from vlc_common.parameters import descriptor
 from vlc_common.process import keep_large_buffers, run_node
 from vlc_common.stamps import stamp_to_ns
@@ -324,7 +325,7 @@ class SbsSplitterNode(Node):
                   'readout_ms': f'{self.readout_s * 1e3:.3f}',
                   'frame_interval_ms_min': (f'{self.min_interval_s * 1e3:.3f}'
                                             if np.isfinite(self.min_interval_s) else 'nan')}
-        self.pub_diag.publish(conversions.diagnostics(
+        self.pub_diag.publish(diagnostic_array(
             self.get_clock().now().to_msg(), f'{self.get_name()}: stereo camera input',
             self.params['hardware_id'], level, message, values))
 

@@ -2,7 +2,6 @@ r"""Messages ↔ arrays for the decoder node: images in, lamp records and diagno
 
 ``vlc/lamps`` layout: :data:`vlc_common.core.records.LAMP_DTYPE`.
 """
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 
 from vlc_common.core.records import (  # noqa: F401
@@ -63,14 +62,3 @@ def cloud_to_array(msg):
     if msg.point_step != LAMP_DTYPE.itemsize or set(names) != set(LAMP_DTYPE.names):
         raise ValueError('not a vlc/lamps cloud')
     return np.frombuffer(bytes(msg.data), dtype=LAMP_DTYPE, count=msg.width * msg.height)
-
-
-def diagnostics(stamp, name, hardware_id, level, message, values):
-    """A DiagnosticArray with one status; ``values`` a dict of key → value (str()'d)."""
-    array = DiagnosticArray()
-    array.header.stamp = stamp
-    status = DiagnosticStatus(level=level, name=name, message=message,
-                              hardware_id=hardware_id)
-    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values.items()]
-    array.status = [status]
-    return array

@@ -48,6 +48,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stereo_pairing import StereoPairing
+from vlc_common.diagnostics import diagnostic_array
 from vlc_common.polled import take_pending
 from vlc_common.process import (
     keep_large_buffers,
@@ -380,7 +381,7 @@ class VlcDecoderNode(Node):
             'decode_ms_median': f'{np.median(self.proc_ms):.2f}' if self.proc_ms else 'nan',
             'decode_ms_max': f'{np.max(self.proc_ms):.2f}' if self.proc_ms else 'nan',
         })
-        self.pub_diag.publish(conversions.diagnostics(
+        self.pub_diag.publish(diagnostic_array(
             self.get_clock().now().to_msg(), 'vlc_decoder: lamp identification',
             self.hardware_id, level, message, values))
 

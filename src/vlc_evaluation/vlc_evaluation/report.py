@@ -585,25 +585,41 @@ def replace_marked_block(path, section, title='', begin=BEGIN_MARK, end=END_MARK
     path.write_text(text, encoding='utf-8')
 
 
+def _max_mean(fig):
+    return f'{_cm(fig["max_m"])} / {_cm(fig["mean_m"])}' if fig and fig.get('count') else '–'
+
+
+def _protocol_rows(names, figure_sets):
+    """Markdown table lines (header first) of the paper's protocols: one column of max /
+    mean per ``names``/``figure_sets`` pair (report.json figures; the first set decides
+    the rows), then the paper's.
+    """
+    lines = ['| protocol | ' + ' | '.join(f'{n}: max / mean (cm)' for n in names)
+             + ' | paper: max / mean (cm) |', '|---' * (len(names) + 2) + '|']
+    first = figure_sets[0]
+    static = first.get('static', {}).get('ours')
+    if static:
+        cells = ' | '.join(_max_mean(f.get('static', {}).get('ours')) for f in figure_sets)
+        lines.append(f'| static, 0.5–10 m before a lamp ({static["count"]} results, '
+                     f'{static["misses"]} misses) | {cells} | '
+                     f'{PAPER_STATIC["max_cm"]:.2f} / {PAPER_STATIC["mean_cm"]:.2f} |')
+    for speed, fig in sorted(first.get('dynamic', {}).items(), key=lambda kv: float(kv[0])):
+        if not fig.get('test_points', {}).get('count'):
+            continue
+        paper = PAPER_DYNAMIC.get(int(float(speed)), {})
+        cells = ' | '.join(_max_mean(f.get('dynamic', {}).get(speed, {}).get('test_points'))
+                           for f in figure_sets)
+        lines.append(f'| dynamic, {float(speed):.0f} km/h (test points) | {cells} | '
+                     + (f'{paper["max_cm"]:.2f} / {paper["mean_cm"]:.2f}' if paper else '–')
+                     + ' |')
+    return lines
+
+
 def summary_markdown(figures, results_link):
     """The README's summary of the evaluation: the paper's protocols, ours beside the
     paper's, and where the full tables are.
     """
-    lines = ['| protocol | ours: max / mean (cm) | paper: max / mean (cm) |', '|---|---|---|']
-    static = figures.get('static', {}).get('ours')
-    if static:
-        lines.append(f'| static, 0.5–10 m before a lamp ({static["count"]} results, '
-                     f'{static["misses"]} misses) | {_cm(static["max_m"])} / '
-                     f'{_cm(static["mean_m"])} | {PAPER_STATIC["max_cm"]:.2f} / '
-                     f'{PAPER_STATIC["mean_cm"]:.2f} |')
-    for speed, fig in sorted(figures.get('dynamic', {}).items(), key=lambda kv: float(kv[0])):
-        tp = fig.get('test_points', {})
-        if not tp.get('count'):
-            continue
-        paper = PAPER_DYNAMIC.get(int(float(speed)), {})
-        paper_text = (f'{paper["max_cm"]:.2f} / {paper["mean_cm"]:.2f}' if paper else '–')
-        lines.append(f'| dynamic, {float(speed):.0f} km/h (test points) | {_cm(tp["max_m"])} / '
-                     f'{_cm(tp["mean_m"])} | {paper_text} |')
+    lines = _protocol_rows(['ours'], [figures])
     replay = figures.get('latency_replay', {}).get('exposure_to_pose', {})
     text = '\n'.join(lines) + '\n'
     if replay.get('count'):
@@ -617,10 +633,6 @@ def summary_markdown(figures, results_link):
 
 PROFILE_BEGIN = '<!-- profiles:begin -->'
 PROFILE_END = '<!-- profiles:end -->'
-
-
-def _max_mean(fig):
-    return f'{_cm(fig["max_m"])} / {_cm(fig["mean_m"])}' if fig and fig.get('count') else '–'
 
 
 def _inside_3sigma(figures):
@@ -639,25 +651,7 @@ def profile_summary(profile, figures, reference=None, reference_name='ideal'):
     and the paper's.
     """
     ref = reference or {}
-    head = (f'| protocol | {profile}: max / mean (cm) | {reference_name}: max / mean (cm) | '
-            'paper: max / mean (cm) |')
-    lines = [head, '|---|---|---|---|']
-    static = figures.get('static', {}).get('ours')
-    if static:
-        lines.append(f'| static, 0.5–10 m before a lamp ({static["count"]} results, '
-                     f'{static["misses"]} misses) | {_max_mean(static)} | '
-                     f'{_max_mean(ref.get("static", {}).get("ours"))} | '
-                     f'{PAPER_STATIC["max_cm"]:.2f} / {PAPER_STATIC["mean_cm"]:.2f} |')
-    for speed, fig in sorted(figures.get('dynamic', {}).items(), key=lambda kv: float(kv[0])):
-        tp = fig.get('test_points', {})
-        if not tp.get('count'):
-            continue
-        paper = PAPER_DYNAMIC.get(int(float(speed)), {})
-        ref_tp = ref.get('dynamic', {}).get(speed, {}).get('test_points')
-        lines.append(f'| dynamic, {float(speed):.0f} km/h (test points) | {_max_mean(tp)} | '
-                     f'{_max_mean(ref_tp)} | '
-                     + (f'{paper["max_cm"]:.2f} / {paper["mean_cm"]:.2f}' if paper else '–')
-                     + ' |')
+    lines = _protocol_rows([profile, reference_name], [figures, ref])
     ours, theirs = _inside_3sigma(figures), _inside_3sigma(ref)
     lines.append('| every published pose within its 3σ (dynamic) | '
                  + ('–' if ours is None else f'{100 * ours:.1f} %') + ' | '

@@ -234,16 +234,21 @@ def load_profile(name, path=''):
 
 
 # ------------------------------------------------------------------ draws
+_DESIGN = CameraIntrinsics()
+
+
 @dataclass(frozen=True)
 class NominalCamera:
-    """The stereo camera as designed: image size (px), pinhole (px), baseline (m)."""
+    """The stereo camera as designed: image size (px), pinhole (px), baseline (m); by
+    default the paper camera of :class:`~vlc_common.core.camera.CameraIntrinsics`.
+    """
 
-    width: int = 1280
-    height: int = 720
-    fx: float = 1040.0
-    fy: float = 1040.0
-    cx: float = 639.5
-    cy: float = 359.5
+    width: int = _DESIGN.width
+    height: int = _DESIGN.height
+    fx: float = _DESIGN.fx
+    fy: float = _DESIGN.fy
+    cx: float = _DESIGN.cx
+    cy: float = _DESIGN.cy
     baseline_m: float = StereoRig.baseline_m
     row_time_s: float = 30e-6
 

@@ -352,6 +352,20 @@ class _PoseTable:
         return q[:, :3], R
 
 
+def _disc_in_camera(g, centres, R_mc):
+    """The disc's axes e1, e2 and its centre relative to the camera, in the camera frame
+    (each (n, k, 3)) for camera centres ``centres`` and map→camera rotations ``R_mc``
+    (n, k, 3, 3); None when any part of the disc is within 1 mm of the camera plane or
+    behind it (no projection).
+    """
+    e1c = np.einsum('nkji,j->nki', R_mc, g.e1)
+    e2c = np.einsum('nkji,j->nki', R_mc, g.e2)
+    dc = np.einsum('nkji,nkj->nki', R_mc, g.centre - centres)
+    if np.any(dc[..., 2] - g.radius_m * np.hypot(e1c[..., 2], e2c[..., 2]) <= 1e-3):
+        return None
+    return e1c, e2c, dc
+
+
 class StereoRenderer:
     """Render stereo frames of the tunnel; see the module docstring.
 
@@ -818,11 +832,10 @@ class StereoRenderer:
         u0, u1, v0, v1 = roi
         n_rows, K = levels.shape
         k = self._intrinsics[camera]
-        e1c = np.einsum('rkji,j->rki', R_mc, g.e1)
-        e2c = np.einsum('rkji,j->rki', R_mc, g.e2)
-        dc = np.einsum('rkji,rkj->rki', R_mc, g.centre - centres)
-        if np.any(dc[..., 2] - g.radius_m * np.hypot(e1c[..., 2], e2c[..., 2]) <= 1e-3):
+        axes = _disc_in_camera(g, centres, R_mc)
+        if axes is None:
             return None
+        e1c, e2c, dc = axes
         K_roi = np.array([[k.fx, 0.0, k.cx - u0], [0.0, k.fy, k.cy - v0], [0.0, 0.0, 1.0]])
         H = K_roi @ np.stack([e1c, e2c, dc], axis=-1)          # (r, k, 3, 3)
         Hi = np.linalg.inv(H)
@@ -945,11 +958,10 @@ class StereoRenderer:
         iu0, iu1, iv0, iv1 = iroi
         n_rows, K = centres.shape[:2]
         k = self._intrinsics[camera]
-        e1c = np.einsum('nkji,j->nki', R_mc, g.e1)
-        e2c = np.einsum('nkji,j->nki', R_mc, g.e2)
-        dc = np.einsum('nkji,nkj->nki', R_mc, g.centre - centres)
-        if np.any(dc[..., 2] - g.radius_m * np.hypot(e1c[..., 2], e2c[..., 2]) <= 1e-3):
+        axes = _disc_in_camera(g, centres, R_mc)
+        if axes is None:
             return None
+        e1c, e2c, dc = axes
 
         def pixel(v):
             return np.stack([k.fx * v[..., 0] + (k.cx - iu0) * v[..., 2],
