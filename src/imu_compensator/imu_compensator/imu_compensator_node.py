@@ -414,16 +414,21 @@ class ImuCompensatorNode(Node):
         new_problems = prev is not None and (dropped > prev[0] or stats.gaps > prev[1]
                                               or stats.resets > prev[2])
         new_inconsistent = prev is not None and stats.aiding_inconsistent > prev[3]
+        # an inconsistency a more pressing message hid this period is said in the next one
+        reported_inconsistent = prev[3] if new_inconsistent else stats.aiding_inconsistent
         if now_t is None:
             status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample yet'
-        elif self._diag_count == 0:
-            status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample this period'
+        # events (bad input, a rejected aid) before the state "no sample this period",
+        # which the next period says again: an event is said once or lost
         elif new_problems:
             status.level = DiagnosticStatus.WARN
             status.message = 'bad IMU input this period (dropped, gap or reset)'
         elif new_inconsistent:
             status.level = DiagnosticStatus.WARN
             status.message = 'attitude aiding inconsistent with the estimate this period'
+            reported_inconsistent = stats.aiding_inconsistent
+        elif self._diag_count == 0:
+            status.level, status.message = DiagnosticStatus.WARN, 'no IMU sample this period'
         else:
             status.level, status.message = DiagnosticStatus.OK, 'tracking'
         bias = comp.gyro_bias_rps
@@ -460,7 +465,7 @@ class ImuCompensatorNode(Node):
         self._diag_pub.publish(msg)
         self._diag_t0 = now_t
         self._diag_count = 0
-        self._diag_stats = (dropped, stats.gaps, stats.resets, stats.aiding_inconsistent)
+        self._diag_stats = (dropped, stats.gaps, stats.resets, reported_inconsistent)
 
 
 def main(args=None):
