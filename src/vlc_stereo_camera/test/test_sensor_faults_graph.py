@@ -107,6 +107,14 @@ def _start_following_imu(launch, probe, params):
     return imu
 
 
+def _clock_listeners(probe):
+    """How many /clock subscriptions the probe's own node holds (its ``subscribe`` or a
+    direct ``create_subscription``): the camera must count them beside the IMU's, or it
+    starts its clock as soon as the probe alone matched, and the IMU may miss it all.
+    """
+    return sum(s.topic_name == '/clock' for s in probe.node.subscriptions)
+
+
 def _start_imu_then_camera(launch, probe, imu_params, camera_params):
     """adis16488_node on the camera's clock: the IMU and the probe's subscriptions matched
     first, then the camera, whose clock starts when the probe takes both image topics.
@@ -114,7 +122,8 @@ def _start_imu_then_camera(launch, probe, imu_params, camera_params):
     """
     imu = launch('vlc_stereo_camera', 'adis16488_node', params=imu_params)
     assert probe.spin_until(lambda: probe.node.count_publishers('imu/data_raw') >= 1
-                            and probe.node.count_subscribers('/clock') >= 1, 30.0,
+                            and probe.node.count_subscribers('/clock')
+                            >= 1 + _clock_listeners(probe), 30.0,
                             [imu]), launch.output(imu)
     probe.spin_for(0.5)                 # data readers and writers match after discovery
     for side in ('left', 'right'):
@@ -123,7 +132,7 @@ def _start_imu_then_camera(launch, probe, imu_params, camera_params):
     # its clock starts once the IMU (and the probe, if it listens) matched /clock too
     camera = launch('vlc_stereo_camera', 'stereo_camera_node',
                     params={**SMALL_CAMERA, 'wait_for_subscribers': 1,
-                            'wait_for_clock_subscribers': 1 + ('clock' in probe.got),
+                            'wait_for_clock_subscribers': 1 + _clock_listeners(probe),
                             **camera_params})
     return imu, camera
 
