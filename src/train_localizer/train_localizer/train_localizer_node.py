@@ -229,6 +229,24 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             self.declare_parameter(name, default, descriptor)
         p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
         self.params = p
+        # Subscribed before the rest is built: a respawned localizer's subscriptions are
+        # discovered while it loads its map (messages wait in their queues until it spins).
+        # The 400 Hz IMU (and the per-frame camera_info, of which only the latest matters)
+        # bypass the executor: taken in batches by _drain() (vlc_common.polled).
+        poll_s = p['imu_poll_period_s']
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._imu_polled = (PolledSubscription(self, Imu, 'imu/data', IMU_QOS)
+                            if poll_s > 0.0 else None)
+        if self._imu_polled is None:
+            self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
+        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
+        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
+        if p['use_curvature_aid']:
+            self.create_subscription(PoseWithCovarianceStamped, p['curvature_aid_topic'],
+                                     self._on_curvature, 10)
+        self._info_polled = [PolledSubscription(self, CameraInfo, f'stereo/{side}/camera_info',
+                                                latched) for side in ('left', 'right')]
         self.lamp_map, self.localizer_config = self.setup(p)
         fix = self.localizer_config.fix
         self._calibration_text = (
@@ -253,6 +271,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self._published = 0
         self._last_pose = None
         self._state = None
+        self._state_since = (None, 0)     # (integrity state, node-clock ns it began at)
         self._stamp_guards = {topic: StampGuard.from_seconds(p['backward_reset_s'],
                                                        p['forward_jump_s'],
                                                        p['time_base_confirm_count'])
@@ -260,28 +279,12 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self._clouds_refused = 0
 
         estimate_qos = 10
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_pose = self.create_publisher(PoseStamped, 'train/pose', estimate_qos)
         self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped,
                                                   'train/pose_with_covariance', estimate_qos)
         self.pub_odom = self.create_publisher(Odometry, 'train/odometry', estimate_qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self.pub_aid = self.create_publisher(PoseWithCovarianceStamped, 'attitude_aiding', 10)
-        # The 400 Hz IMU (and the per-frame camera_info, of which only the latest matters)
-        # bypass the executor: taken in batches by _drain() (vlc_common.polled).
-        poll_s = p['imu_poll_period_s']
-        self._imu_polled = (PolledSubscription(self, Imu, 'imu/data', IMU_QOS)
-                            if poll_s > 0.0 else None)
-        if self._imu_polled is None:
-            self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
-        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
-        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
-        if p['use_curvature_aid']:
-            self.create_subscription(PoseWithCovarianceStamped, p['curvature_aid_topic'],
-                                     self._on_curvature, 10)
-        self._info_polled = [PolledSubscription(self, CameraInfo, f'stereo/{side}/camera_info',
-                                                latched) for side in ('left', 'right')]
         self.create_timer(poll_s if poll_s > 0.0 else 0.02, self._on_poll, clock=self._steady)
         self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
                           clock=self._steady)
@@ -531,10 +534,16 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
 
     def _publish_diagnostics(self):
         state, level, message, sigma = self.localizer.status()
+        now = self.get_clock().now()
+        if state != self._state_since[0]:
+            self._state_since = (state, now.nanoseconds)
         c = self.localizer.monitor.counters
         j = self.joiner.stats
         values = {
             'integrity_state': state.value,
+            # how long ago (node clock) it began: a subscriber that matched late, or lost
+            # the message of the transition, still learns when it happened
+            'integrity_state_age_s': f'{(now.nanoseconds - self._state_since[1]) * 1e-9:.3f}',
             'chainage_sigma_m': f'{sigma:.4f}',
             'chainage_sigma_systematic_m': f'{self.localizer.systematic_sigma_m:.4f}',
             'calibration_sigma': self._calibration_text,
@@ -590,7 +599,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         if unknown is not None:
             values['last_unknown_uid'] = f'{int(unknown[1]):#06x}'
         msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = now.to_msg()
         msg.status = [conversions.diagnostic_status(f'{self.get_name()}: integrity',
                                                     'train_localizer', level, message, values)]
         self.pub_diag.publish(msg)

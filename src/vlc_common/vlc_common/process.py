@@ -51,8 +51,13 @@ def freeze_start_up_objects():
     allocate at that moment (docs/arch/spot_locator.md "Per-frame tail"). Frozen, a full
     collection only sees what was allocated since. Per-frame garbage is still collected
     as before.
+
+    Only the young generations are collected first: a full collection of those ~90k
+    objects took 0.04 s on an idle machine and 0.15-0.27 s beside the running graph, all
+    of it in the way of a respawned node's first message; what cyclic garbage the start
+    left in the old generation is frozen with the rest (a few kB, never a growth).
     """
-    gc.collect()
+    gc.collect(1)
     gc.freeze()
 
 

@@ -27,6 +27,7 @@ each pose is matched to the run segment it was made in by the recording times.
 """
 from dataclasses import dataclass, field
 import json
+import math
 import os
 import pathlib
 import signal
@@ -210,6 +211,7 @@ class FaultDriver(threading.Thread):
             elif fault.action == 'kill':
                 self.record['killed_exit_code'] = self.graph.kill(fault.node)
                 self.graph.restart(fault.node)
+                self.record['restarted_wall_s'] = time.time()
             self.record['window_s'] = [start, self._sim_s()]
         except Exception as exc:  # noqa: BLE001 — reported in the run's problems
             self.record['problems'].append(f'fault driver: {exc!r}')
@@ -253,6 +255,19 @@ class FaultRun:
     states: list = field(default_factory=list)   # [(log ns, integrity state)]
 
 
+def _state_age_ns(values):
+    """How long before its publication the reported integrity state began (the
+    localizer's ``integrity_state_age_s``; 0 when absent or unreadable): the recorder
+    matches a respawned localizer's diagnostics only after discovery and may miss the
+    message of the transition itself, not the time it happened.
+    """
+    try:
+        age = float(values.get('integrity_state_age_s', 0.0))
+    except ValueError:
+        return 0
+    return int(round(age * 1e9)) if math.isfinite(age) and age > 0.0 else 0
+
+
 def load_fault_run(bag):
     rows = {k: [] for k in ('t', 'p', 'c', 'd')}
     for topic, _, log_ns, msg in open_bag(bag, topics=['/ground_truth/pose', '/clock',
@@ -272,7 +287,8 @@ def load_fault_run(bag):
                 if status.name.split(':')[0].strip().endswith('train_localizer'):
                     values = {kv.key: kv.value for kv in status.values}
                     if 'integrity_state' in values:
-                        rows['d'].append((log_ns, values['integrity_state']))
+                        rows['d'].append((log_ns - _state_age_ns(values),
+                                          values['integrity_state']))
     truth = np.array([r[:5] for r in rows['t']], dtype=float).reshape(-1, 5)
     poses = rows['p']
     clock = np.array(rows['c'], dtype=float).reshape(-1, 2)
