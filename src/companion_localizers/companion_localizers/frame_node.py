@@ -29,6 +29,7 @@ from train_localizer.core.join import FrameJoiner
 from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
+from vlc_common.polled import RECORDS_QOS
 from vlc_common.throttled_log import ThrottledWarnings
 
 _DEG = math.pi / 180.0
@@ -132,8 +133,8 @@ class ImuFrameNode(JoinedFramesNode, Node):
         self.pub_pose = self.create_publisher(PoseStamped, f'companion/{self.METHOD}/pose', 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, 'diagnostics', 10)
         self.create_subscription(Imu, 'imu/data', self._on_imu, qos_profile_sensor_data)
-        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
-        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
+        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, RECORDS_QOS)
+        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, RECORDS_QOS)
         for side, index in (('left', 0), ('right', 1)):
             self.create_subscription(CameraInfo, f'stereo/{side}/camera_info',
                                      lambda msg, i=index: self._on_camera_info(i, msg), latched)

@@ -84,6 +84,24 @@ def test_imu_back_by_more_than_a_duplicate_is_a_candidate_frames_may_be_late():
     assert mon.check(FRAME, EPOCH_NS - 2 * S) == HELD
 
 
+def test_frames_queued_behind_an_imu_backlog_continue_their_stream():
+    """A stalled IMU catches up with 1.5 s of samples, handed on before the frames that
+    queued meanwhile: those frames are late, not from another clock. A frame that far
+    behind the IMU without continuing its own stream (the first after a reset) still is
+    a candidate.
+    """
+    mon = TimeBaseMonitor()
+    mon.check(FRAME, EPOCH_NS)
+    mon.check(IMU, EPOCH_NS)
+    for k in range(1, 601):
+        assert mon.check(IMU, EPOCH_NS + k * 2_500_000) == OK
+    for k in range(1, 46):
+        assert mon.check(FRAME, EPOCH_NS + k * 33_333_333) == OK
+    mon.reset_streams()
+    mon.check(IMU, EPOCH_NS + 3 * S)
+    assert mon.check(FRAME, EPOCH_NS + 1 * S) == HELD
+
+
 @pytest.mark.parametrize('field', ['backward_reset_s', 'imu_backward_s', 'blind_gap_s'])
 def test_config_rejects_non_positive_windows(field):
     with pytest.raises(ValueError):
@@ -231,6 +249,28 @@ def test_a_stalled_localizer_bridges_short_stalls_and_restarts_after_long_ones(s
     codes = [e.code for r in reports for e in r.events]
     assert ('time_reset' in codes) == lost
     assert 'time_doubt' not in codes           # the clock showed the time passed
+    assert loc.status()[0] == IntegrityState.TRACKING
+
+
+def test_an_imu_backlog_worked_off_before_the_queued_frames_is_no_new_clock():
+    """The IMU process stalled for 1.5 s and catches up at once; the node hands all of
+    its samples on before the frames that queued meanwhile (reliable, none lost): the
+    frames are fused late, the localizer neither resets nor loses track.
+    """
+    traj, events = simulate(9.0)
+    before = [e for e in events if e[0] < 3.0]
+    during = [e for e in events if 3.0 <= e[0] < 4.5]
+    after = [e for e in events if e[0] >= 4.5]
+    reordered = (before + [e for e in during if e[1] == 'imu']
+                 + [e for e in during if e[1] != 'imu'] + after)
+    loc = make()
+    states = []
+    poses, _ = run(loc, reordered, lambda t: 0, states=states)
+    assert loc.monitor.counters.time_resets == 0
+    assert loc.time_base.counters.dropped == 0
+    assert IntegrityState.LOST not in states[len(before):]
+    wrong, inside = confidently_wrong(score(traj, poses, 0.0, 0))
+    assert wrong == 0 and inside >= 0.997
     assert loc.status()[0] == IntegrityState.TRACKING
 
 

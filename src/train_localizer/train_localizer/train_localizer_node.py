@@ -2,9 +2,9 @@
 
 Subscribes (relative names):
 
-* ``spots/pairs`` (sensor_msgs/PointCloud2; reliable, depth 10): sub-pixel spot pairs
+* ``spots/pairs`` (sensor_msgs/PointCloud2; reliable, depth 100): sub-pixel spot pairs
   from spot_locator, one point per lamp, header = image header;
-* ``vlc/lamps`` (sensor_msgs/PointCloud2; reliable, depth 10): lamp UIDs from
+* ``vlc/lamps`` (sensor_msgs/PointCloud2; reliable, depth 100): lamp UIDs from
   vlc_decoder, same stamps; joined with the spot pairs by stamp
   (:mod:`train_localizer.core.join`);
 * ``imu/data`` (sensor_msgs/Imu; best effort, depth 1000): compensated attitude,
@@ -54,6 +54,7 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 from train_localizer import conversions
 from train_localizer import node_parameters as params
 from train_localizer.core.fix import FixConfig
+from train_localizer.core.imu_pacing import ImuPacer
 from train_localizer.core.integrity import IntegrityConfig, Level
 from train_localizer.core.join import FrameJoiner
 from train_localizer.core.localizer import Localizer, LocalizerConfig
@@ -72,7 +73,7 @@ from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import IMU_QOS, PolledSubscription
+from vlc_common.polled import IMU_QOS, RECORDS_QOS, PolledSubscription
 from vlc_common.process import run_node
 from vlc_common.throttled_log import ThrottledWarnings
 
@@ -240,8 +241,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                             if poll_s > 0.0 else None)
         if self._imu_polled is None:
             self.create_subscription(Imu, 'imu/data', self._on_imu, IMU_QOS)
-        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, 10)
-        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, 10)
+        self.create_subscription(PointCloud2, 'spots/pairs', self._on_spots, RECORDS_QOS)
+        self.create_subscription(PointCloud2, 'vlc/lamps', self._on_lamps, RECORDS_QOS)
         if p['use_curvature_aid']:
             self.create_subscription(PoseWithCovarianceStamped, p['curvature_aid_topic'],
                                      self._on_curvature, 10)
@@ -260,6 +261,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self.localizer = Localizer(self.lamp_map, self.localizer_config)
         self.curvature_aid = ChainageAid(self.localizer, self.reacquisition_config(p))
         self.joiner = FrameJoiner(params.join_config(p))
+        self._imu_pacer = ImuPacer()
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._warnings = ThrottledWarnings(self.get_logger(), p['warn_throttle_s'],
                                            clock=self._now_s)
@@ -398,9 +400,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                                                  received_ns))
 
     def _drain(self):
-        """Hand the localizer every IMU sample and camera_info received so far (every
-        camera_info in order: the last one of a batch may be a bad one, which must not
-        hide the good one before it).
+        """Hand the localizer every camera_info received so far (every one in order: the
+        last one of a batch may be a bad one, which must not hide the good one before it)
+        and the IMU samples received so far that are not too far ahead of the frames.
         """
         for index, sub in enumerate(self._info_polled):
             for info in sub.take_all():
@@ -410,7 +412,15 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             if msgs:
                 received_ns = self.get_clock().now().nanoseconds
                 for msg in msgs:
-                    self._on_imu(msg, received_ns)
+                    self._imu_pacer.push(conversions.stamp_to_ns(msg.header.stamp),
+                                         (msg, received_ns))
+            # no further ahead of the frames than they need (core.imu_pacing)
+            start = self._now_s()
+            released = self._imu_pacer.release(start)
+            for msg, received_ns in released:
+                self._on_imu(msg, received_ns)
+            if released:
+                self._imu_pacer.credit(self._now_s() - start)
 
     def _on_poll(self):
         self._drain()
@@ -427,16 +437,18 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
     def _on_spots(self, msg):
         records = self._records(msg, 'spots/pairs', SPOT_FIELDS)
         if records is not None:
-            self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
+            self._imu_pacer.on_frame(stamp, self._now_s())     # before the IMU it releases
+            self._drain()
             for stamp_ns, rec in self._guarded('spots/pairs', stamp, records):
                 self._process(self.joiner.add_spots(stamp_ns, rec, self._now_s()))
 
     def _on_lamps(self, msg):
         records = self._records(msg, 'vlc/lamps', LAMP_FIELDS)
         if records is not None:
-            self._drain()
             stamp = conversions.stamp_to_ns(msg.header.stamp)
+            self._imu_pacer.on_frame(stamp, self._now_s())     # before the IMU it releases
+            self._drain()
             for stamp_ns, rec in self._guarded('vlc/lamps', stamp, records):
                 self._process(self.joiner.add_lamps(stamp_ns, rec, self._now_s()))
 
@@ -565,6 +577,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             'camera_info_refused': self._intrinsics.keeper.refused,
             'imu_rejected': c.imu_rejected,
             'records_too_old': c.records_too_old,
+            'imu_samples_held_max': self._imu_pacer.held_max,
             'imu_attitude_implausible': c.imu_attitude_implausible,
             'fixes_attitude_fallback': c.fixes_attitude_fallback,
             'frames_joined': j.joined,

@@ -8,8 +8,9 @@ used. A stamp is a *time-base candidate* instead of a usable one when it is
   publisher's samples never come out of order, so anything but a duplicate is a clock
   that went back) or ``backward_reset_s`` (frames: two perception nodes finish frames
   out of order, and a late frame is applied where it belongs; a frame that much older
-  than the newest IMU sample too): a restarted or stepped sensor clock, a looped bag, a
-  stamp from 1970;
+  than the newest IMU sample too, unless it continues the frame stream: frames queued
+  behind an IMU backlog the node worked off first are late, not from another clock): a
+  restarted or stepped sensor clock, a looped bag, a stamp from 1970;
 * newer than the newest stamp of *both* streams by more than ``blind_gap_s``: nothing
   was received for that long (a stalled process whose queues overflowed, a clock stepped
   forward, a corrupt stamp from the future). What happened meanwhile cannot be vouched
@@ -120,7 +121,12 @@ class TimeBaseMonitor:
         if s.newest_ns is not None and s.newest_ns - t > back_s * NS_PER_S:
             return f'{stream} stamp {(s.newest_ns - t) * 1e-9:.3f} s older than the newest'
         imu = self._streams[IMU].newest_ns
-        if stream == FRAME and imu is not None and imu - t > cfg.backward_reset_s * NS_PER_S:
+        # A frame that continues the frame stream (within backward_reset_s of its newest)
+        # is on the frame stream's time base however far the IMU is ahead: the node worked
+        # off an IMU backlog (a stalled IMU catching up) before the frames queued behind it.
+        continues = s.newest_ns is not None and t - s.newest_ns <= back_s * NS_PER_S
+        if (stream == FRAME and not continues and imu is not None
+                and imu - t > cfg.backward_reset_s * NS_PER_S):
             return f'frame stamp {(imu - t) * 1e-9:.3f} s older than the newest IMU sample'
         newest = self._newest_any()
         if newest is not None and t - newest > cfg.blind_gap_s * NS_PER_S:
