@@ -298,3 +298,48 @@ def test_curvature_aid_can_be_switched_off(harness):
     h.spin_until(lambda: False, 0.2)
     assert h.node.count_subscribers('companion/curvature/pose_with_covariance') == 0
     assert not h.node.curvature_aid.config.enabled
+
+
+def _self_calibration_params(path):
+    """A node that learns its calibration, kept in ``path``."""
+    return {'use_self_calibration': True, 'self_calibration_path': str(path)}
+
+
+@pytest.mark.parametrize('text,why', [
+    ('vehicle_id: [unclosed', 'does not parse'),
+    ('vehicle_id: another_train\ndisparity_offset_px: 0.3\ndisparity_offset_sigma_px: 0.05\n'
+     'stereo_scale_error: 0.0\nstereo_scale_sigma: 0.001\ncamera_fx_b_px_m: 124.8\n',
+     'another vehicle'),
+])
+def test_a_bad_self_calibration_file_is_refused_and_left_alone(harness, tmp_path, text, why):
+    """Refused with a message naming the file; the node runs on the given calibration,
+    its diagnostics say so, and the file is not overwritten at stop.
+    """
+    path = tmp_path / 'self_calibration.yaml'
+    path.write_text(text)
+    h = harness(_self_calibration_params(path))
+    assert h.node._self_cal_state.startswith('refused') and why in h.node._self_cal_state
+    assert str(path) in h.node._self_cal_state
+    assert not h.node.localizer.survey.applied
+    h.node._publish_diagnostics()
+    assert h.spin_until(lambda: h.got['diag'])
+    values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
+    assert values['self_calibration'].startswith('learning; refused')
+    h.node.save_self_calibration()
+    assert path.read_text() == text
+
+
+def test_a_saved_self_calibration_is_applied_from_the_start_and_written_back(harness,
+                                                                             tmp_path):
+    path = tmp_path / 'self_calibration.yaml'
+    path.write_text('vehicle_id: demo_train\ndisparity_offset_px: 0.3\n'
+                    'disparity_offset_sigma_px: 0.05\nstereo_scale_error: 0.001\n'
+                    'stereo_scale_sigma: 0.0005\ncamera_fx_b_px_m: 124.8\nruns: 2\n')
+    h = harness(_self_calibration_params(path))
+    survey = h.node.localizer.survey
+    assert h.node._self_cal_state == 'from file (2 run(s))'
+    assert survey.applied and list(survey.theta) == [0.3, 0.001]
+    assert survey.range_factor(10.0) == pytest.approx(1.001 * 10.0 / 9.7)
+    h.node.save_self_calibration()
+    saved = yaml.safe_load(path.read_text())
+    assert saved['runs'] == 3 and saved['disparity_offset_px'] == 0.3

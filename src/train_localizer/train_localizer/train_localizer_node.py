@@ -68,6 +68,13 @@ from train_localizer.core.reacquisition import (
     ReacquisitionConfig,
     chainage_measurement,
 )
+from train_localizer.core.self_calibration_file import (
+    SavedCalibration,
+    SelfCalibrationFileError,
+    load_saved_calibration,
+    save_calibration,
+)
+from train_localizer.core.self_survey import SelfSurveyConfig
 from train_localizer.core.track import Track
 from train_localizer.joined_frames import JoinedFramesNode
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
@@ -127,6 +134,14 @@ PARAMETERS = (
     ('calibration_disparity_sigma_px', 0.8, _desc('Raw images: 1-sigma systematic error of '
                                                   'the calibration in the disparity, px.',
                                                   0.0, 100.0)),
+    ('use_self_calibration', False, _desc('Raw images: learn the stereo range calibration '
+                                         '(disparity offset, fx*b scale) from the lamps '
+                                         'and apply it (core/self_survey.py).')),
+    ('self_calibration_path', '', _desc("File the learnt calibration is kept in: read at "
+                                        "start (this vehicle's only), written at stop and "
+                                        "every self_calibration_save_s; '' = none.")),
+    ('self_calibration_save_s', 10.0, _desc('Steady-clock period of writing the learnt '
+                                            'calibration, s.', 1.0, 3600.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
     ('attitude_sigma_floor_deg', [0.05, 0.05, 0.1],
@@ -249,6 +264,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self._info_polled = [PolledSubscription(self, CameraInfo, f'stereo/{side}/camera_info',
                                                 latched) for side in ('left', 'right')]
         self.lamp_map, self.localizer_config = self.setup(p)
+        self._self_cal_state, saved = self._load_self_calibration(p)
+        self._self_cal_runs = 1 + (saved.runs if saved is not None else 0)
         fix = self.localizer_config.fix
         self._calibration_text = (
             f'stereo scale {fix.stereo_scale_sigma:.2%}, focal {fix.focal_length_sigma:.2%}, '
@@ -290,6 +307,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self.create_timer(poll_s if poll_s > 0.0 else 0.02, self._on_poll, clock=self._steady)
         self.create_timer(p['diagnostics_period_s'], self._publish_diagnostics,
                           clock=self._steady)
+        if p['self_calibration_path'] and self.localizer.survey is not None:
+            self.create_timer(p['self_calibration_save_s'], self.save_self_calibration,
+                              clock=self._steady)
         self.get_logger().info(
             f'lamp map {path} ({len(self.lamp_map)} lamps), track '
             f'{self.localizer_config.fix.track.name}; range constraint '
@@ -308,6 +328,59 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         config.fix.track = Track.for_lamp_map(lamp_map, p['alignment'],
                                               config.fix.track_offset_yz_m)
         return lamp_map, config
+
+    def _load_self_calibration(self, p):
+        """The saved self-calibration as the self-survey's prior: (state text, saved or
+        None). A refused file is logged and the node runs on the given calibration.
+        """
+        cfg = self.localizer_config
+        if cfg.self_survey is None:
+            return 'off', None
+        path = p['self_calibration_path']
+        if not path:
+            return 'learning (not kept: no self_calibration_path)', None
+        vehicle_id = params.load_mount(p).vehicle_id
+        try:
+            saved = load_saved_calibration(path, vehicle_id)
+        except SelfCalibrationFileError as exc:
+            self.get_logger().error(f'self-calibration file refused, running on the given '
+                                    f'calibration: {exc}')
+            return f'refused: {exc}', None
+        if saved is None:
+            return f'learning (first run of {vehicle_id})', None
+        sc = cfg.self_survey
+        sc.disparity_offset_px, sc.disparity_offset_sigma_px = (
+            saved.disparity_offset_px, saved.disparity_offset_sigma_px)
+        sc.stereo_scale_error, sc.stereo_scale_sigma = (saved.stereo_scale_error,
+                                                        saved.stereo_scale_sigma)
+        sc.from_file = True
+        self.get_logger().info(
+            f'self-calibration of {vehicle_id} from {path} ({saved.runs} run(s)): disparity '
+            f'offset {saved.disparity_offset_px:+.3f} px (1-sigma '
+            f'{saved.disparity_offset_sigma_px:.3f}), stereo scale '
+            f'{saved.stereo_scale_error:+.2e} (1-sigma {saved.stereo_scale_sigma:.1e})')
+        return f'from file ({saved.runs} run(s))', saved
+
+    def save_self_calibration(self):
+        """Write the learnt calibration (once it has converged) to
+        ``self_calibration_path``; errors are logged, never raised.
+        """
+        survey = self.localizer.survey
+        path = self.params['self_calibration_path']
+        if not path or survey is None or not survey.applied or self._self_cal_state.startswith(
+                'refused'):
+            return
+        sd, ss = survey.published_sigmas()
+        g = self.localizer_config.geometry
+        saved = SavedCalibration(
+            vehicle_id=params.load_mount(self.params).vehicle_id,
+            disparity_offset_px=float(survey.theta[0]), disparity_offset_sigma_px=sd,
+            stereo_scale_error=float(survey.theta[1]), stereo_scale_sigma=ss,
+            camera_fx_b_px_m=float(g.fx * g.baseline_m), runs=self._self_cal_runs)
+        try:
+            save_calibration(path, saved)
+        except OSError as exc:
+            self._warn('self_calibration_save', f'self-calibration not written to {path}: {exc}')
 
     @staticmethod
     def reacquisition_config(p):
@@ -373,7 +446,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             initial_chainage_m=p['initial_chainage_m'] if p['use_initial_prior'] else math.nan,
             initial_chainage_sigma_m=p['initial_chainage_sigma_m'],
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,
-            max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'])
+            max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'],
+            self_survey=(SelfSurveyConfig(refine_map=False)
+                         if p['use_self_calibration'] else None))
 
     # ------------------------------------------------------------------ inputs
     def _guarded(self, topic, stamp_ns, item):
@@ -585,6 +660,19 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             'lamp_records_unmatched': j.unmatched_lamp_records,
             'intrinsics': self._intrinsics.source,
         }
+        survey = self.localizer.survey
+        if survey is not None:
+            sd, ss = survey.published_sigmas()
+            values.update({
+                'self_calibration': (('applied' if survey.applied else 'learning')
+                                     + f'; {self._self_cal_state}'),
+                'disparity_offset_px': f'{survey.theta[0]:+.4f}',
+                'disparity_offset_sigma_px': f'{sd:.4f}',
+                'stereo_scale_error': f'{survey.theta[1]:+.2e}',
+                'stereo_scale_sigma': f'{ss:.2e}',
+                'self_survey_lamps_inconsistent': len(survey.flagged)})
+        else:
+            values['self_calibration'] = 'off'
         aid = self.curvature_aid.counters
         values.update({'curvature_aids_received': aid.received,
                        'curvature_aids_applied': aid.applied,
@@ -619,7 +707,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
 
 
 def main(args=None):
-    return run_node(TrainLocalizerNode, 'train_localizer', args)
+    return run_node(TrainLocalizerNode, 'train_localizer', args,
+                    stop=TrainLocalizerNode.save_self_calibration)
 
 
 if __name__ == '__main__':

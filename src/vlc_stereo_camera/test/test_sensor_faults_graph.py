@@ -241,9 +241,10 @@ def test_imu_bursts_on_the_cameras_clock_leave_in_groups(launch, probe):
     probe.node.create_subscription(Clock, '/clock', on_clock, RELIABLE)
     probe.node.create_subscription(Imu, 'imu/data_raw', on_imu, IMU_QOS)
     imu, camera = _start_imu_then_camera(launch, probe, {'imu_burst_s': 0.5},
-                                         {'realtime_factor': 2.0, 'duration_s': 3.2})
+                                         {'realtime_factor': 2.0, 'duration_s': 4.2})
     probe.spin_until(lambda: camera.poll() is not None, 90.0, [imu])
-    probe.spin_for(0.5)
+    # a loaded machine may leave the IMU behind the clock: let it publish what it holds
+    probe.spin_until(lambda: len(samples) >= 1600, 3.0, [imu])
     assert camera.returncode == 0, launch.output(camera)
     assert launch.stop(imu) == 0, launch.output(imu)
     assert len(samples) >= 1000, launch.output(imu)

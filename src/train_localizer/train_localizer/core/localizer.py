@@ -58,6 +58,7 @@ from train_localizer.core.reports import (
     PoseEstimate,
     StepReport,
 )
+from train_localizer.core.self_survey import SelfSurvey
 from train_localizer.core.standstill import StandstillConfig, StandstillDetector
 from train_localizer.core.time_base import (
     FRAME,
@@ -188,6 +189,10 @@ class LocalizerConfig:
     initial_speed_mps: float = float('nan')
     max_speed_mps: float = 40.0
     init_lookback_s: float = 0.5
+    #: :class:`~train_localizer.core.self_survey.SelfSurveyConfig` (None: off) and the
+    #: lamps' priors of a saved refinement ({uid: (mean m, 1σ m)})
+    self_survey: object = None
+    lamp_priors: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for name in ('publish_rate_hz', 'history_s', 'imu_timeout_s', 'imu_max_gap_s',
@@ -233,6 +238,10 @@ class Localizer:
             backward_reset_s=cfg.backward_reset_s, imu_backward_s=cfg.imu_backward_s,
             blind_gap_s=cfg.blind_gap_s))
         self._lost_reason = None
+        self.survey = (SelfSurvey(cfg.self_survey, dict(cfg.lamp_priors))
+                       if cfg.self_survey is not None else None)
+        self._survey_started = False
+        self._survey_seq = 0
         self._reset_state()
 
     # ----------------------------------------------------------------- state
@@ -679,6 +688,9 @@ class Localizer:
                                        f'lamp record with disparity {obs.disparity_px:.2f} px '
                                        'skipped'))
             return
+        if self.survey is not None:
+            self._start_survey()
+            p_cam, cov_cam = self.survey.correct(p_cam, cov_cam, obs.disparity_px)
         R, cov_att = self._attitude(t_m)
         prep = _Prepared(t_m, obs, p_cam, cov_cam, R, cov_att)
         lamp = None
@@ -721,6 +733,8 @@ class Localizer:
             if not geometry_ok:
                 self._geometry_rejected(prep, lamp, fix, report)
                 return
+            if self.survey is not None:
+                self._survey_fix(prep, lamp, fix, state)
             y, S = innovation(state, fix.chainage_m, fix.var_m2)
             d2 = mahalanobis2(y, S)
             if d2 > self.config.integrity.gate_chi2:
@@ -822,6 +836,72 @@ class Localizer:
             return None, None, float('nan'), why
         fix, d2 = fixes[lamp.uid]
         return lamp, fix, d2, why
+
+    # ------------------------------------------------------------ self-survey
+    def _start_survey(self):
+        """At the first observation (camera_info has arrived by then): the calibration
+        priors are the σ the fix states; δ and ε are estimated only for raw images
+        (an ideal rectified pair has none to estimate).
+        """
+        if self._survey_started:
+            return
+        self._survey_started = True
+        g, s = self.config.geometry, self.survey
+        s.config.calibrate = bool(s.config.calibrate and g.raw_images)
+        if not s.config.calibrate:
+            s.applied = False
+        sig = np.array([max(float(g.calibration_sigma_px[1]), 1e-3),
+                        max(self.config.fix.stereo_scale_sigma, 1e-5)])
+        if not s.applied:
+            s.theta_prior_sigma = sig
+            s.theta_sigma = sig.copy()
+        self._survey_prior_sigmas = (float(g.calibration_sigma_px[1]),
+                                     self.config.fix.stereo_scale_sigma)
+
+    def _survey_fix(self, prep, lamp, fix, state):
+        """Hand one confirmed lamp's *range* to the self-survey, solve when due, and state
+        the learnt calibration's σ in the fix from then on.
+
+        The chainage the stereo range alone gives (the lamp's lateral and vertical offset
+        from the camera taken from the map and the track, mm; no direction, so no mount
+        angle), ``s = s_fix + Δ·t − √(r² − lat² − vert²)``, its slope ``∂s/∂λ =
+        −r²/(λ·along)`` and variance ``σ_r²·(r/along)²``, moved to the frame's instant by
+        the filter's speed. Lamps less than ``min_along_m`` ahead are left out (there the
+        range says little about the chainage).
+        """
+        cfg, survey = self.config, self.survey
+        base, tangent, normal = cfg.fix.track.frame(fix.chainage_m)
+        cam = base + prep.R @ cfg.geometry.t_base_cam
+        delta = np.asarray(lamp.position_m, float) - cam
+        lat, vert = float(delta @ normal), float(delta[2])
+        r2 = float(prep.p_cam @ prep.p_cam)
+        along2 = r2 - lat * lat - vert * vert
+        if not along2 > survey.config.min_along_m ** 2:
+            return
+        along = math.sqrt(along2)
+        lam = survey.range_factor(prep.obs.disparity_px)
+        u = prep.p_cam / math.sqrt(r2)
+        var_r = float(u @ prep.cov_cam @ u)
+        chainage = fix.chainage_m + float(delta @ tangent) - along
+        if survey.config.eliminate_frames:
+            frame_ns = int(prep.obs.stamp_ns)
+            chainage -= state.speed_mps * (prep.t_ns - frame_ns) / NS_PER_S
+            var_ref = 0.0
+        else:
+            # against the filter's chainage at the instant, before this fix
+            self._survey_seq += 1
+            frame_ns = self._survey_seq
+            chainage -= state.chainage_m
+            var_ref = float(state.P[0, 0])
+        survey.add(frame_ns, lamp.uid, prep.obs.disparity_px, chainage,
+                   var_r * r2 / along2 + var_ref, -r2 / (lam * along),
+                   float(lamp_sigma(lamp, cfg.fix)[0]))
+        if survey.maybe_solve(prep.t_ns) and survey.converged:
+            sd, ss = survey.published_sigmas()
+            g = cfg.geometry
+            g.calibration_sigma_px = (g.calibration_sigma_px[0],
+                                      min(sd, self._survey_prior_sigmas[0]))
+            cfg.fix.stereo_scale_sigma = min(ss, self._survey_prior_sigmas[1])
 
     def _apply_fix(self, t_m, fix):
         self._blend_systematic(t_m, fix)
