@@ -7,7 +7,9 @@
 #  3. one report over all of it, written into README.md and the companion docs;
 #  4. the paper's protocols on the realistic rig profile (2 trials per static point, 2
 #     runs per speed, a drawn installation per seed), summarised in README.md beside 3.;
-#  5. the fault protocol (one fault per run, alone on the machine), its table written
+#  5. the error budget of the realistic profile (each error source alone), its table
+#     written into README.md;
+#  6. the fault protocol (one fault per run, alone on the machine), its table written
 #     into README.md and docs/arch/evaluation.md.
 # Bags, logs and report: out/eval/ (OUT=... to change).
 set -eo pipefail
@@ -26,5 +28,7 @@ ros2run vlc_evaluation run_evaluation --protocol full --latency --ablations \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md
 ros2run vlc_evaluation run_evaluation --protocol full --trials 2 --runs 2 \
     --rig-profile realistic --out "$out/realistic" --profile-docs README.md
+ros2run vlc_evaluation run_evaluation --protocol none --budget --out "$out/budget" \
+    --budget-docs README.md
 ros2run vlc_evaluation run_evaluation --protocol none --faults --out "$out/faults" \
     --faults-docs README.md docs/arch/evaluation.md

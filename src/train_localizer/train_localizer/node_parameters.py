@@ -95,7 +95,7 @@ def rig_geometry(p, mount=None):
     camera = (mount or load_mount(p)).camera
     return RigGeometry.from_mount(
         tuple(float(v) for v in camera.position_m), camera.placement_angle_deg,
-        camera.pitch_deg, fx=p['fx'], fy=p['fy'], cx=p['cx'], cy=p['cy'],
+        camera.pitch_deg, camera.roll_deg, fx=p['fx'], fy=p['fy'], cx=p['cx'], cy=p['cy'],
         baseline_m=p['baseline_m'], row_time_s=p['row_time_s'], exposure_s=p['exposure_s'],
         calibration_sigma_px=(float(p.get('calibration_sigma_px', 0.0)),
                               float(p.get('calibration_disparity_sigma_px', 0.0))))

@@ -200,3 +200,62 @@ def test_ablation_groups_and_table():
     assert figures['baseline']['static']['misses'] == 1
     assert figures['baseline']['dynamic'][20]['mean_m'] == pytest.approx(0.03)
     assert '| 4.00 / 3.00 |' in table and table.count('\n') == 3
+
+
+def test_budget_groups_isolate_one_source_per_row_on_the_same_seeds():
+    from vlc_evaluation import budget
+    from vlc_stereo_camera.core.installation import BUDGET_SOURCES, load_profile
+    groups = budget.budget_groups('realistic', trials=1, runs=1, first_seed=5)
+    rows = [name for name, _, _ in budget.budget_rows('realistic')]
+    assert rows == ['none', *BUDGET_SOURCES, 'all']
+    assert len(groups) == 2 * len(rows)
+    for name, rig_profile, _ in budget.budget_rows('realistic'):
+        load_profile(rig_profile)                       # every row names a real profile
+        for kind in ('static', 'dynamic'):
+            group = groups[f'budget/{name}/{kind}']
+            assert {s.rig_profile for s in group} == {rig_profile}
+            assert [s.seed for s in group] == [s.seed for s in groups[f'budget/all/{kind}']]
+    assert groups['budget/survey/static'][0].rig_profile == 'realistic/only-survey'
+    assert groups['budget/all/dynamic'][0].seed == 5
+
+
+def test_budget_table_weights_containment_by_poses_and_writes_its_block(tmp_path):
+    from vlc_evaluation import budget
+    results = {'budget/none/static': [{'error_m': 0.01, 'seed': 1}, {'error_m': None, 'seed': 2}],
+               'budget/none/dynamic': [
+                   {'speed_kmh': 40.0, 'seed': 1, 'points': [{'error_m': 0.02}],
+                    'every_pose': {'max_m': 0.05, 'count': 300},
+                    'covariance_3sigma_fraction': 1.0},
+                   {'speed_kmh': 40.0, 'seed': 2, 'points': [{'error_m': 0.04}],
+                    'every_pose': {'max_m': 0.06, 'count': 100},
+                    'covariance_3sigma_fraction': 0.9}],
+               'budget/survey/static': [{'error_m': 0.03, 'seed': 1}]}
+    table, figures = budget.budget_table(results)
+    assert list(figures) == ['none', 'survey']
+    assert figures['none']['within_3sigma'] == pytest.approx(0.975)
+    assert '| 4.00 / 3.00 | 97.5 % | 1 |' in table
+    assert figures['survey']['within_3sigma'] is None and table.count('\n') == 3
+    doc = tmp_path / 'doc.md'
+    doc.write_text('# x\n\n<!-- budget:begin -->\nold\n<!-- budget:end -->\n\ntail\n')
+    budget.update_docs(doc, results, 'realistic', 'run_evaluation --budget')
+    text = doc.read_text()
+    assert 'old' not in text and text.endswith('tail\n') and '`survey`' in text
+    assert 'seeds 1, 2' in text
+
+
+def test_budget_of_a_profile_without_sources_exits_2(capsys):
+    from vlc_evaluation import cli
+    with pytest.raises(SystemExit) as exc:
+        cli.main(['--protocol', 'none', '--budget', '--budget-profile', 'ideal',
+                  '--out', '/nonexistent/budget'])
+    assert exc.value.code == 2
+    assert "'ideal' draws nothing" in capsys.readouterr().err
+
+
+def test_param_text_quotes_strings_in_lists_so_a_colon_stays_in_them():
+    import yaml
+
+    from vlc_evaluation.graph_runner import param_text
+    text = param_text(['rig_profile=realistic/only:lens', 'seed=1', 2.5, True])
+    assert yaml.safe_load(text) == ['rig_profile=realistic/only:lens', 'seed=1', 2.5, True]
+    assert param_text([1, 2]) == '[1,2]' and param_text(False) == 'false'

@@ -106,7 +106,7 @@ def ablation_table(results, variants=VARIANTS):
     return '\n'.join(rows), figures
 
 
-def plot_ablations(figures, path):
+def plot_ablations(figures, path, title='Ablations'):
     """Bar chart: static and per-speed mean and max error of every variant."""
     import matplotlib
     matplotlib.use('Agg')
@@ -118,7 +118,7 @@ def plot_ablations(figures, path):
     groups = ['static'] + [f'{v} km/h' for v in speeds]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=False)
     width = 0.8 / len(names)
-    for ax, key, title in ((axes[0], 'mean_m', 'mean error'), (axes[1], 'max_m', 'max error')):
+    for ax, key, what in ((axes[0], 'mean_m', 'mean error'), (axes[1], 'max_m', 'max error')):
         for i, name in enumerate(names):
             f = figures[name]
             values = [f['static'][key]] + [f['dynamic'].get(v, {}).get(key, np.nan)
@@ -127,7 +127,7 @@ def plot_ablations(figures, path):
                    width, label=name)
         ax.set_xticks(np.arange(len(groups)) + 0.4 - width / 2, groups)
         ax.set_ylabel('error (cm)')
-        ax.set_title(f'Ablations: {title}')
+        ax.set_title(f'{title}: {what}')
         ax.grid(alpha=0.3, axis='y')
     axes[0].legend(fontsize=7)
     fig.tight_layout()

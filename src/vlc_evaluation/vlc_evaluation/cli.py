@@ -9,6 +9,7 @@ Examples::
     run_evaluation --protocol companions --lanes 1 --out out/companions   # other methods
     run_evaluation --protocol none --forged --out out/forged
     run_evaluation --protocol none --latency --out out/latency       # replay latency
+    run_evaluation --protocol none --budget --out out/budget         # error budget
 """
 import argparse
 import json
@@ -19,7 +20,7 @@ import sys
 import time
 
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
-from vlc_evaluation import ablations, companions, faults, report, scenarios
+from vlc_evaluation import ablations, budget, companions, faults, report, scenarios
 from vlc_evaluation.graph_runner import SPAWN_MODES
 from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
 
@@ -176,6 +177,19 @@ def main(argv=None):
                         help='a drawn --rig-profile: also write its summary beside the main '
                              "evaluation's (docs/evaluation/report.json) and the paper's "
                              'between the profiles markers of these Markdown files')
+    parser.add_argument('--budget', action='store_true',
+                        help='also run the error budget (evaluation/budget.py): the reduced '
+                             'static + dynamic set once with every error source of '
+                             '--budget-profile off, once per source alone, once with all')
+    parser.add_argument('--budget-profile', default='realistic',
+                        help='budget: the drawn rig profile whose sources are isolated')
+    parser.add_argument('--budget-trials', type=int, default=2,
+                        help='budget: static trials per point (seeds first-seed, ...)')
+    parser.add_argument('--budget-runs', type=int, default=2, help='budget: dynamic runs per '
+                        'speed')
+    parser.add_argument('--budget-docs', nargs='+', default=[],
+                        help='budget: also write its table between the budget markers of '
+                             'these Markdown files')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -214,6 +228,12 @@ def main(argv=None):
         groups.update(ablations.ablation_groups(
             trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
             realtime_factor=args.realtime_factor))
+    if args.budget:
+        from vlc_stereo_camera.core.installation import ProfileError, load_profile
+        try:
+            load_profile(f'{args.budget_profile}/none')
+        except ProfileError as exc:
+            parser.exit(2, f'run_evaluation: error: {exc}\n')
     fault_scenarios = (faults.fault_scenarios(args.fault_speed, names=args.fault_names)
                        if args.faults else [])
     if args.rig_profile != 'ideal':
@@ -225,6 +245,12 @@ def main(argv=None):
         for name, group in list(groups.items()) + [('faults', fault_scenarios)]:
             for scenario in group if name != 'replay' else ():
                 scenario.rig_profile, scenario.calibration = args.rig_profile, args.calibration
+    if args.budget:
+        # after --rig-profile: the budget rows keep their own profiles
+        groups.update(budget.budget_groups(
+            args.budget_profile, trials=args.budget_trials, runs=args.budget_runs,
+            observe_s=args.observe_s, realtime_factor=args.realtime_factor,
+            first_seed=args.first_seed))
     total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
 
@@ -274,6 +300,17 @@ def main(argv=None):
                                       if args.protocol not in ('none', 'companions')
                                       else 'Evaluation'),
                                ablations=ablation, replays=replayed)
+    if args.budget:
+        table, figures = budget.budget_table(results, args.budget_profile)
+        budget.plot_budget(figures, out / 'budget.png')
+        added = (f'\n## Error budget (`{args.budget_profile}`, each source alone)\n\n'
+                 f'{budget.describe(figures)}\n\n{table}\n\n![budget](budget.png)\n')
+        with open(out / 'report.md', 'a', encoding='utf-8') as stream:
+            stream.write(added)
+        text += added
+        for path in args.budget_docs:
+            budget.update_docs(path, results, args.budget_profile, command)
+            print(f'{path}: budget section rewritten')
     if kinds:
         added = companions.append_to_report(out, results.get('companions', ()),
                                             results.get('outage', ()), results.get('forged', ()))

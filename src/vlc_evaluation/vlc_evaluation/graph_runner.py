@@ -24,6 +24,7 @@ import ctypes
 import functools
 import importlib
 from importlib import metadata
+import json
 import multiprocessing
 import os
 import pathlib
@@ -52,7 +53,9 @@ def param_text(value):
     if isinstance(value, bool):
         return 'true' if value else 'false'
     if isinstance(value, (list, tuple)):
-        return '[' + ','.join(param_text(v) for v in value) + ']'
+        # strings quoted: a ':' or ',' inside one would end it in a YAML flow sequence
+        return '[' + ','.join(json.dumps(v) if isinstance(v, str) else param_text(v)
+                              for v in value) + ']'
     return str(value)
 
 

@@ -261,7 +261,8 @@ class Adis16488Node(Node):
                 f'rig_profile {cfg.scenario.rig_profile}, seed {cfg.scenario.seed}: the drawn '
                 f'installation (IMU lever arm {np.round(mount.position_m, 4).tolist()} m, '
                 f'boresight {np.round(np.degrees(mount.rpy_rad), 3).tolist()} deg, clock '
-                f'offset {cfg.scenario.imu_clock_offset_s() * 1e3:+.3f} ms in the stamps)')
+                f'offset {cfg.scenario.imu_clock_offset_s() * 1e3:+.3f} ms and drift '
+                f'{cfg.scenario.imu_clock_drift_ppm():+.2f} ppm in the stamps)')
         if self._faults.imu_faults:
             self.get_logger().warn(f'sensor faults: {self._faults.describe()}')
 

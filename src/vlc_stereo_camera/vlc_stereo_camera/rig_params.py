@@ -35,7 +35,7 @@ from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.stamps import epoch_to_ns
 from vlc_stereo_camera.core.car_body import CarBody, CarBodyConfig
-from vlc_stereo_camera.core.installation import draw_vehicle, load_profile
+from vlc_stereo_camera.core.installation import draw_imu_clock, draw_vehicle, load_profile
 from vlc_stereo_camera.core.sensor_faults import SensorFaults
 from vlc_stereo_camera.core.trajectory import MotionProfile, Trajectory, Vibration, VibrationConfig
 
@@ -146,10 +146,11 @@ class ScenarioConfig:
 
     def imu_clock_offset_s(self):
         """The drawn IMU-minus-camera clock offset of the installation, s (0 for ideal)."""
-        profile = self.profile()
-        if profile.ideal:
-            return 0.0
-        return draw_vehicle(profile, self.seed, self.nominal_vehicle())[2]
+        return draw_imu_clock(self.profile(), self.seed)[0]
+
+    def imu_clock_drift_ppm(self):
+        """The drawn IMU clock drift against the camera's, ppm (0 for ideal)."""
+        return draw_imu_clock(self.profile(), self.seed)[1]
 
     def track_alignment(self):
         """The Alignment named by ``alignment`` (raises ValueError if unknown)."""
@@ -181,7 +182,8 @@ class ScenarioConfig:
             imu_dropouts_s=self.imu_dropouts_s, camera_dropouts_s=self.camera_dropouts_s,
             imu_burst_s=self.imu_burst_s,
             imu_stamp_offset_s=self.imu_stamp_offset_s + self.imu_clock_offset_s(),
-            sensor_clock_jumps_s=self.sensor_clock_jumps_s)
+            sensor_clock_jumps_s=self.sensor_clock_jumps_s,
+            imu_clock_drift_ppm=self.imu_clock_drift_ppm())
         faults.check_epoch(epoch_to_ns(self.epoch_s))
         return faults
 

@@ -238,7 +238,8 @@ class StereoCameraNodeConfig:
             baseline_m=self.baseline_m,
             mount_xyz_m=tuple(float(v) for v in mount.position_m),
             placement_angle_deg=mount.placement_angle_deg, pitch_deg=mount.pitch_deg,
-            fps=self.fps, row_time_s=self.row_time_s, exposure_s=self.exposure_s,
+            roll_deg=mount.roll_deg, fps=self.fps, row_time_s=self.row_time_s,
+            exposure_s=self.exposure_s,
             epoch_s=epoch_s, chip_rate_hz=self.chip_rate_hz, off_level=self.off_level,
             lamp_clock_ppm=self.lamp_clock_ppm, lamp_diameter_m=self.lamp_diameter_m,
             optics=OpticsConfig(luminous_flux_lm=self.lamp_luminous_flux_lm,
@@ -463,8 +464,14 @@ class StereoCameraNode(Node):
             t_ns = ns - self._epoch_ns          # the frame's true time
             dropped = self._faults.camera_dropped(t_ns)
             ns = self._faults.sensor_stamp_ns(ns, t_ns)
-        left_hdr = conversions.header(ns, cfg.left_frame_id)
-        right_hdr = conversions.header(ns, cfg.right_frame_id)
+        # the images carry the driver's stamp (with the installation's per-frame jitter);
+        # the true pose stays on the true time
+        image_ns = ns
+        if self.installation is not None:
+            image_ns += int(round(1e9 * self.installation.frame_stamp_jitter_s(
+                round(frame.t0_s * cfg.fps))))
+        left_hdr = conversions.header(image_ns, cfg.left_frame_id)
+        right_hdr = conversions.header(image_ns, cfg.right_frame_id)
         if dropped:
             self._frames_dropped += 1
         else:
@@ -476,6 +483,8 @@ class StereoCameraNode(Node):
         self.pub_pose.publish(conversions.pose_msg(frame.base_position_m, frame.base_quat_xyzw,
                                                    map_hdr))
         self.pub_odom.publish(conversions.odometry_msg(frame, map_hdr, cfg.base_frame_id))
+        # the spots' truth belongs to its image: the image's stamp (the evaluation pairs
+        # them by stamp; their exposure times inside are true)
         self.pub_spots.publish(conversions.records_to_cloud(
             conversions.truth_records(frame.truth, frame.t0_s), left_hdr))
 

@@ -103,10 +103,11 @@ class RigGeometry:
             raise ValueError('row_time_s and exposure_s must be >= 0')
 
     @classmethod
-    def from_mount(cls, mount_xyz_m, placement_angle_deg, pitch_deg, **kwargs):
+    def from_mount(cls, mount_xyz_m, placement_angle_deg, pitch_deg, roll_deg=0.0, **kwargs):
         """Geometry from the rig's mounting parameters (see ``mount_rotation``)."""
         return cls(t_base_cam=np.asarray(mount_xyz_m, dtype=float),
-                   R_base_cam=mount_rotation(placement_angle_deg, pitch_deg), **kwargs)
+                   R_base_cam=mount_rotation(placement_angle_deg, pitch_deg, roll_deg),
+                   **kwargs)
 
     @classmethod
     def from_stereo_rig(cls, rig, row_time_s=30e-6, exposure_s=50e-6):

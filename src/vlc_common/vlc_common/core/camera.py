@@ -41,14 +41,21 @@ class CameraIntrinsics:
                 np.degrees(2 * np.arctan(self.height / (2 * self.fy))))
 
 
-def mount_rotation(placement_angle_deg, pitch_deg):
-    """R_base_cam (3, 3): columns are the optical x, y, z axes expressed in base_link."""
+def mount_rotation(placement_angle_deg, pitch_deg, roll_deg=0.0):
+    """R_base_cam (3, 3): columns are the optical x, y, z axes expressed in base_link.
+
+    ``roll_deg`` turns the camera about its optical axis z (+ turns image right, x,
+    toward image down, y): a bracket that is not square to the car body; 0 by design.
+    """
     a, p = np.radians(placement_angle_deg), np.radians(pitch_deg)
     z0 = np.array([np.sin(a), np.cos(a), 0.0])    # toward the wall, turned forward
     x0 = np.array([np.cos(a), -np.sin(a), 0.0])   # image right
     y0 = np.array([0.0, 0.0, -1.0])               # image down
     z = np.cos(p) * z0 + np.sin(p) * y0           # tilted down by the pitch
     y = np.cos(p) * y0 - np.sin(p) * z0
+    if roll_deg:
+        r = np.radians(roll_deg)
+        x0, y = np.cos(r) * x0 + np.sin(r) * y, np.cos(r) * y - np.sin(r) * x0
     return np.column_stack([x0, y, z])
 
 
@@ -61,13 +68,15 @@ class StereoRig:
     mount_xyz_m: tuple = (0.0, 0.8, 2.9)
     placement_angle_deg: float = 49.0
     pitch_deg: float = 27.0
+    roll_deg: float = 0.0
 
     def __post_init__(self):
         if self.intrinsics is None:
             self.intrinsics = CameraIntrinsics()
         if not self.baseline_m > 0.0:
             raise ValueError('baseline_m must be > 0')
-        self.R_base_cam = mount_rotation(self.placement_angle_deg, self.pitch_deg)
+        self.R_base_cam = mount_rotation(self.placement_angle_deg, self.pitch_deg,
+                                         self.roll_deg)
         left = np.asarray(self.mount_xyz_m, dtype=float)
         self.t_base_cams = np.stack([left, left + self.baseline_m * self.R_base_cam[:, 0]])
 

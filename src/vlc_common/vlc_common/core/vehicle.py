@@ -11,6 +11,7 @@ the pip-installed Jazzy has no tf2_msgs wheel, so the mount travels as this file
       position_m: [0.0, 0.8, 2.9]
       placement_angle_deg: 49.0       # axis turned from the left-wall normal toward +x
       pitch_deg: 27.0                 # axis tilted down
+      roll_deg: 0.0                   # turned about the optical axis (optional, 0)
     imu:
       position_m: [0.0, 0.0, 0.0]     # lever arm of imu_link
       rpy_deg: [0.0, 0.0, 0.0]        # boresight: imu_link in base_link (REP-103 roll, pitch, yaw)
@@ -67,6 +68,7 @@ class CameraMount:
     position_m: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.8, 2.9]))
     placement_angle_deg: float = 49.0
     pitch_deg: float = 27.0
+    roll_deg: float = 0.0
 
     def __post_init__(self):
         self.position_m = _vector3(self.position_m, 'stereo_camera.position_m')
@@ -74,7 +76,7 @@ class CameraMount:
     @property
     def R_base_cam(self):
         """(3, 3): columns are the optical x, y, z axes in ``base_link``."""
-        return mount_rotation(self.placement_angle_deg, self.pitch_deg)
+        return mount_rotation(self.placement_angle_deg, self.pitch_deg, self.roll_deg)
 
 
 @dataclass
@@ -130,7 +132,8 @@ class VehicleMount:
                 position_m=cam.get('position_m', CameraMount().position_m),
                 placement_angle_deg=_finite(cam.get('placement_angle_deg', 49.0),
                                             'stereo_camera.placement_angle_deg'),
-                pitch_deg=_finite(cam.get('pitch_deg', 27.0), 'stereo_camera.pitch_deg'))
+                pitch_deg=_finite(cam.get('pitch_deg', 27.0), 'stereo_camera.pitch_deg'),
+                roll_deg=_finite(cam.get('roll_deg', 0.0), 'stereo_camera.roll_deg'))
             rpy_deg = _vector3(imu.get('rpy_deg', [0.0, 0.0, 0.0]), 'imu.rpy_deg')
             imu_mount = ImuMount(position_m=imu.get('position_m', [0.0, 0.0, 0.0]),
                                  rpy_rad=np.radians(rpy_deg))
@@ -152,7 +155,8 @@ class VehicleMount:
             'frame_id': self.frame_id,
             'stereo_camera': {'position_m': [float(v) for v in c.position_m],
                               'placement_angle_deg': float(c.placement_angle_deg),
-                              'pitch_deg': float(c.pitch_deg)},
+                              'pitch_deg': float(c.pitch_deg),
+                              **({'roll_deg': float(c.roll_deg)} if c.roll_deg else {})},
             'imu': {'position_m': [float(v) for v in i.position_m],
                     'rpy_deg': [float(v) for v in np.degrees(i.rpy_rad)]},
             'photodiode': {'position_m': [float(v) for v in p.position_m],

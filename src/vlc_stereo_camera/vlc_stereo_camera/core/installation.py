@@ -52,6 +52,10 @@ PROFILE_NAMES = ('ideal', 'realistic', 'harsh')
 #: Stream tags of the draws (one independent generator per part).
 _TAG_OPTICS, _TAG_CALIBRATION, _TAG_MOUNT, _TAG_CLOCK, _TAG_LAMP = (
     0x0B71C, 0xCA11B, 0x30047, 0xC10CC, 0x1A4B5)
+#: Streams added later, apart so that the draws above stay what they were: the camera
+#: roll (truth, then measurement) and the per-frame stamp jitter (blocks of frames).
+_TAG_ROLL, _TAG_JITTER = 0x2011, 0x717E2
+_JITTER_BLOCK = 1024
 
 # Section → key → kind: 'number' (>= 0), 'pair' ([mean, sigma >= 0]), 'range' ([lo, hi],
 # 0 < lo <= hi), 'fraction' (0..1).
@@ -60,7 +64,7 @@ _SCHEMA = {
              'principal_point_sigma_px': 'number', 'k1': 'pair', 'k2': 'pair', 'k3': 'pair',
              'tangential_sigma': 'number', 'right_rotation_sigma_deg': 'number',
              'right_position_sigma_m': 'number', 'trigger_skew_s': 'range',
-             'row_time_ppm': 'number'},
+             'row_time_ppm': 'number', 'stamp_jitter_s': 'number'},
     'calibration': {'reprojection_rms_px': 'number', 'focal_sigma': 'number',
                     'principal_point_sigma_px': 'number', 'k1_sigma': 'number',
                     'k2_sigma': 'number', 'k3_sigma': 'number', 'tangential_sigma': 'number',
@@ -71,7 +75,7 @@ _SCHEMA = {
               'imu_position_sigma_m': 'number', 'imu_boresight_sigma_deg': 'number',
               'imu_position_measurement_sigma_m': 'number',
               'imu_boresight_measurement_sigma_deg': 'number',
-              'imu_clock_offset_sigma_s': 'number'},
+              'imu_clock_offset_sigma_s': 'number', 'imu_clock_drift_sigma_ppm': 'number'},
     'lamps': {'survey_sigma_plan_m': 'number', 'survey_sigma_height_m': 'number',
               'gross_error_fraction': 'fraction', 'gross_error_m': 'number',
               'normal_tilt_sigma_deg': 'number', 'diameter_sigma': 'number',
@@ -80,8 +84,44 @@ _SCHEMA = {
                'hot_pixel_fraction': 'fraction', 'psf_sigma_corner_px': 'number',
                'wall_reflection_fraction': 'fraction'},
 }
+#: Keys added after the first profiles: a profile file without them draws 0 (none).
+_OPTIONAL = {('lens', 'stamp_jitter_s'): 0.0, ('mount', 'imu_clock_drift_sigma_ppm'): 0.0}
 #: A lamp's brightness factor is clipped to this range (a dead lamp is 0, drawn apart).
 BRIGHTNESS_RANGE = (0.2, 1.5)
+
+#: The error sources of the error budget: name → (what it is, its (section, key)s; the
+#: ``track`` source is the profile's car body). Every key of a profile belongs to exactly
+#: one source, except the calibration's stated reprojection RMS (a statement, not an
+#: error) and the mean lens distortion (the lens design: always drawn, always calibrated).
+BUDGET_SOURCES = {
+    'lens': ('lens spread, each camera and the pair (focal length, principal point, '
+             'distortion, right camera pose), known from the calibration',
+             [('lens', k) for k in ('focal_sigma', 'aspect_sigma', 'principal_point_sigma_px',
+                                    'k1', 'k2', 'k3', 'tangential_sigma',
+                                    'right_rotation_sigma_deg', 'right_position_sigma_m')]),
+    'calibration': ('stereo calibration errors (intrinsics, distortion, extrinsics)',
+                    [('calibration', k) for k in _SCHEMA['calibration']
+                     if k != 'reprojection_rms_px']),
+    'camera_mount': ('camera mount: installation and its measurement (position, angles, '
+                     'roll)', [('mount', k) for k in _SCHEMA['mount']
+                               if k.startswith('camera_')]),
+    'imu_mount': ('IMU mount: lever arm and boresight, installation and measurement',
+                  [('mount', k) for k in _SCHEMA['mount'] if k.startswith('imu_')
+                   and 'clock' not in k]),
+    'timing': ('timing: trigger skew, row time, frame stamp jitter, IMU clock offset '
+               'and drift', [('lens', 'trigger_skew_s'), ('lens', 'row_time_ppm'),
+                             ('lens', 'stamp_jitter_s'), ('mount', 'imu_clock_offset_sigma_s'),
+                             ('mount', 'imu_clock_drift_sigma_ppm')]),
+    'survey': ('lamp survey: 1σ per axis and gross errors',
+               [('lamps', k) for k in ('survey_sigma_plan_m', 'survey_sigma_height_m',
+                                       'gross_error_fraction', 'gross_error_m')]),
+    'lamps': ('lamp hardware: normal tilt, diameter, brightness, dead lamps',
+              [('lamps', k) for k in ('normal_tilt_sigma_deg', 'diameter_sigma',
+                                      'brightness_sigma', 'dead_fraction')]),
+    'track': ('car body on the track irregularity (instead of the eq. 21 vibration)', []),
+    'sensor': ('sensor and scene: fixed pattern, row noise, hot pixels, corner blur, wall '
+               'reflections', [('sensor', k) for k in _SCHEMA['sensor']]),
+}
 
 
 class ProfileError(ValueError):
@@ -151,8 +191,9 @@ def _check_value(source, where, kind, value):
     a, b = number(value[0]), number(value[1])
     if kind == 'pair' and b < 0.0:
         raise ProfileError(source, where, f'sigma {b} must be >= 0')
-    if kind == 'range' and not 0.0 < a <= b:
-        raise ProfileError(source, where, f'[{a}, {b}] must satisfy 0 < lo <= hi')
+    if kind == 'range' and not (0.0 < a <= b or a == b == 0.0):
+        raise ProfileError(source, where, f'[{a}, {b}] must satisfy 0 < lo <= hi (or be '
+                           '[0, 0]: none)')
     return (a, b)
 
 
@@ -177,6 +218,9 @@ def _parse_profile(name, data, source):
                                    + ', '.join(keys) + ')')
         sections[section] = {}
         for key, kind in keys.items():
+            if key not in values and (section, key) in _OPTIONAL:
+                sections[section][key] = _OPTIONAL[section, key]
+                continue
             if key not in values:
                 raise ProfileError(source, f'{name}.{section}.{key}', 'missing')
             sections[section][key] = _check_value(source, f'{name}.{section}.{key}', kind,
@@ -225,12 +269,49 @@ def _parse_profiles(path, text):
 
 
 def load_profile(name, path=''):
-    """The profile ``name`` of a profiles file; :class:`ProfileError` if unknown."""
+    """The profile ``name`` of a profiles file; :class:`ProfileError` if unknown.
+
+    ``<profile>/only-<source>`` is ``<profile>`` with every error source of
+    :data:`BUDGET_SOURCES` but ``<source>`` switched off, ``<profile>/none`` with all of
+    them off (the error budget; :func:`isolate_source`).
+    """
     profiles = load_profiles(path)
-    if name not in profiles:
+    base, _, variant = str(name).partition('/')
+    if base not in profiles:
         raise ProfileError(profiles['ideal'].source, 'rig_profile',
-                           f'unknown profile {name!r} (known: {", ".join(profiles)})')
-    return profiles[name]
+                           f'unknown profile {base!r} (known: {", ".join(profiles)})')
+    if not variant:
+        return profiles[base]
+    keep = variant[len('only-'):] if variant.startswith('only-') else variant
+    if not (variant == 'none' or (variant.startswith('only-') and keep in BUDGET_SOURCES)):
+        raise ProfileError(profiles['ideal'].source, 'rig_profile',
+                           f'unknown variant {variant!r} of {base!r} (known: none, '
+                           + ', '.join(f'only-{s}' for s in BUDGET_SOURCES) + ')')
+    if profiles[base].ideal:
+        raise ProfileError(profiles['ideal'].source, 'rig_profile',
+                           f'{base!r} draws nothing: it has no error sources to isolate')
+    return isolate_source(profiles[base], None if variant == 'none' else keep)
+
+
+def isolate_source(profile, keep):
+    """``profile`` with every error source but ``keep`` (a :data:`BUDGET_SOURCES` name,
+    or None: all) off: sigmas, fractions and the trigger skew 0, distortion means kept,
+    the car body replaced by the eq. 21 vibration; named ``<name>/only-<keep>`` or
+    ``<name>/none``. Each source draws from its own stream, so a source on alone draws
+    the same values for a seed as in the whole profile.
+    """
+    kept = set(BUDGET_SOURCES[keep][1]) if keep else set()
+    sections = copy.deepcopy(profile.sections)
+    for section, keys in _SCHEMA.items():
+        for key, kind in keys.items():
+            if (section, key) in kept or (section, key) == ('calibration',
+                                                            'reprojection_rms_px'):
+                continue
+            value = sections[section][key]
+            sections[section][key] = ((value[0], 0.0) if kind == 'pair' else
+                                      (0.0, 0.0) if kind == 'range' else 0.0)
+    return RigProfile(f'{profile.name}/' + (f'only-{keep}' if keep else 'none'), sections,
+                      profile.car_body if keep == 'track' else None, profile.source)
 
 
 # ------------------------------------------------------------------ draws
@@ -286,7 +367,8 @@ def draw_optics(profile, seed, nominal=NominalCamera()):
     position = (np.array([nominal.baseline_m, 0.0, 0.0])
                 + p['right_position_sigma_m'] * rng.standard_normal(3))
     lo, hi = p['trigger_skew_s']
-    skew = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    skew = float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if hi > 0.0 else (
+        rng.uniform() * 0.0)       # none: the stream goes on as with a skew
     row_time = nominal.row_time_s * (1.0 + 1e-6 * p['row_time_ppm'] * rng.standard_normal())
     return OpticsTruth(left=left, right=right, right_rotation_deg=tuple(rotation.tolist()),
                        right_position_m=tuple(position.tolist()),
@@ -444,7 +526,7 @@ def _perturbed_mount(camera, imu, rng, pos_sigma, angle_sigma, imu_pos_sigma, im
     d_imu_rpy = np.radians(imu_rpy_sigma) * rng.standard_normal(3)
     return (CameraMount(position_m=camera.position_m + d_pos,
                         placement_angle_deg=camera.placement_angle_deg + d_ang[0],
-                        pitch_deg=camera.pitch_deg + d_ang[1]),
+                        pitch_deg=camera.pitch_deg + d_ang[1], roll_deg=camera.roll_deg),
             ImuMount(position_m=imu.position_m + d_imu_pos, rpy_rad=imu.rpy_rad + d_imu_rpy))
 
 
@@ -452,8 +534,9 @@ def draw_vehicle(profile, seed, nominal):
     """(truth, belief, imu_clock_offset_s): the mount of the sensors on ``base_link``.
 
     truth = ``nominal`` (a VehicleMount) + installation deviation; belief (the mount file
-    as measured) = truth + measurement error; the photodiode is left nominal. The ideal
-    profile returns the nominal mount for both and 0.
+    as measured) = truth + measurement error; the camera's roll about its optical axis
+    draws with the same angle sigmas from a stream of its own; the photodiode is left
+    nominal. The ideal profile returns the nominal mount for both and 0.
     """
     if profile.ideal:
         return nominal, nominal, 0.0
@@ -462,17 +545,49 @@ def draw_vehicle(profile, seed, nominal):
     cam, imu = _perturbed_mount(nominal.camera, nominal.imu, rng, m['camera_position_sigma_m'],
                                 m['camera_angle_sigma_deg'], m['imu_position_sigma_m'],
                                 m['imu_boresight_sigma_deg'])
+    roll = _rng(seed, _TAG_ROLL).standard_normal(2)
+    cam.roll_deg = float(cam.roll_deg + m['camera_angle_sigma_deg'] * roll[0])
     truth = VehicleMount(vehicle_id=nominal.vehicle_id, frame_id=nominal.frame_id, camera=cam,
                          imu=imu, photodiode=nominal.photodiode, source='(truth)')
     cam_b, imu_b = _perturbed_mount(cam, imu, rng, m['camera_position_measurement_sigma_m'],
                                     m['camera_angle_measurement_sigma_deg'],
                                     m['imu_position_measurement_sigma_m'],
                                     m['imu_boresight_measurement_sigma_deg'])
+    cam_b.roll_deg = float(cam.roll_deg + m['camera_angle_measurement_sigma_deg'] * roll[1])
     belief = VehicleMount(vehicle_id=nominal.vehicle_id, frame_id=nominal.frame_id,
                           camera=cam_b, imu=imu_b, photodiode=nominal.photodiode,
                           source='(as measured)')
-    offset = float(m['imu_clock_offset_sigma_s'] * _rng(seed, _TAG_CLOCK).standard_normal())
-    return truth, belief, offset
+    return truth, belief, draw_imu_clock(profile, seed)[0]
+
+
+def draw_imu_clock(profile, seed):
+    """(offset_s, drift_ppm): the IMU clock against the camera's, stamp_imu − stamp_cam
+    = offset + drift·1e-6·t (t: seconds since the start); (0, 0) for the ideal profile.
+    """
+    if profile.ideal:
+        return 0.0, 0.0
+    m = profile.mount
+    rng = _rng(seed, _TAG_CLOCK)
+    offset = float(m['imu_clock_offset_sigma_s'] * rng.standard_normal())
+    return offset, float(m['imu_clock_drift_sigma_ppm'] * rng.standard_normal())
+
+
+def frame_stamp_jitter_s(profile, seed, frame_index):
+    """The stamp error of camera frame ``frame_index`` (s): a driver that stamps a frame
+    on its arrival adds a transfer delay that varies from frame to frame; its mean is
+    part of the IMU–camera offset, its spread is this zero-mean normal draw of
+    ``lens.stamp_jitter_s`` (0 for the ideal profile). Drawn in blocks of frames.
+    """
+    sigma = 0.0 if profile.ideal else profile.lens['stamp_jitter_s']
+    if not sigma:
+        return 0.0
+    block, k = divmod(int(frame_index), _JITTER_BLOCK)
+    return float(sigma * _jitter_block(int(seed), block)[k])
+
+
+@functools.lru_cache(maxsize=4)
+def _jitter_block(seed, block):
+    return _rng(seed, _TAG_JITTER, block).standard_normal(_JITTER_BLOCK)
 
 
 @dataclass
@@ -567,6 +682,11 @@ class Installation:
     lamp_map_truth: LampMap = None
     lamp_map_belief: LampMap = None
     lamp_draws: dict = field(default_factory=dict)
+    imu_clock_drift_ppm: float = 0.0
+
+    def frame_stamp_jitter_s(self, frame_index):
+        """The stamp error of camera frame ``frame_index``, s (:func:`frame_stamp_jitter_s`)."""
+        return frame_stamp_jitter_s(self.profile, self.seed, frame_index)
 
     @property
     def lamp_brightness(self):
@@ -601,6 +721,9 @@ class Installation:
                    'width', 'height', 'fx', 'fy', 'cx', 'cy', 'baseline_m', 'row_time_s')},
                'row_time_s': float(self.row_time_s),
                'imu_clock_offset_s': float(self.imu_clock_offset_s),
+               'imu_clock_drift_ppm': float(self.imu_clock_drift_ppm),
+               'frame_stamp_jitter_sigma_s': (0.0 if self.profile.ideal
+                                              else float(self.profile.lens['stamp_jitter_s'])),
                'vehicle_truth': self.vehicle_truth.to_dict(),
                'vehicle_belief': self.vehicle_belief.to_dict(),
                'car_body': self.profile.car_body}
@@ -687,7 +810,8 @@ def draw_installation(profile, seed, vehicle, lamp_map=None, nominal=NominalCame
     inst = Installation(profile=profile, seed=int(seed), nominal=nominal, optics=optics,
                         row_time_s=row_time, vehicle_truth=truth, vehicle_belief=belief,
                         imu_clock_offset_s=offset, calibration=calibration,
-                        calibration_error=error)
+                        calibration_error=error,
+                        imu_clock_drift_ppm=draw_imu_clock(profile, seed)[1])
     if lamp_map is not None:
         inst.lamp_map_truth, inst.lamp_map_belief, inst.lamp_draws = draw_line(
             profile, seed, lamp_map)

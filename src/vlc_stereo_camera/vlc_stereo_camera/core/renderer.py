@@ -128,6 +128,7 @@ class RendererConfig:
     mount_xyz_m: tuple = StereoRig.mount_xyz_m
     placement_angle_deg: float = StereoRig.placement_angle_deg
     pitch_deg: float = StereoRig.pitch_deg
+    roll_deg: float = StereoRig.roll_deg
     fps: float = 30.0
     row_time_s: float = 30e-6
     exposure_s: float = 50e-6
@@ -206,7 +207,7 @@ class RendererConfig:
         return StereoRig(intrinsics=self.intrinsics, baseline_m=self.baseline_m,
                          mount_xyz_m=tuple(self.mount_xyz_m),
                          placement_angle_deg=self.placement_angle_deg,
-                         pitch_deg=self.pitch_deg)
+                         pitch_deg=self.pitch_deg, roll_deg=self.roll_deg)
 
 
 @dataclass

@@ -20,12 +20,15 @@ Faults (parameters of ``config/rig.yaml``, every default off):
     [(k−1)·B, k·B), each with its own stamp.
 ``imu_stamp_offset_s`` = d
     Added to every IMU stamp (the IMU clock runs offset from the camera's); release
-    still by the true time.
+    still by the true time. A drawn installation adds its IMU clock offset here, and
+    its drift (``imu_clock_drift_ppm`` of :meth:`SensorFaults.from_parameters`: the IMU
+    stamp gains drift·1e-6·t).
 ``sensor_clock_jumps_s`` = [at_s, jump_s, ...]
     Every sensor and truth stamp of a sample with t ≥ at_s gets jump_s more
     (cumulative over the jumps; negative = back). ``/clock`` is not stepped.
 
-Stamps: ``stamp = epoch + t + Σ_{at ≤ t} jump`` (+ ``imu_stamp_offset_s`` for the IMU).
+Stamps: ``stamp = epoch + t + Σ_{at ≤ t} jump`` (+ ``imu_stamp_offset_s`` + drift·t for
+the IMU).
 """
 from dataclasses import dataclass
 import math
@@ -89,6 +92,8 @@ class SensorFaults:
         Burst period of the IMU, ns; 0 = every sample released when due.
     imu_stamp_offset_ns : int
         Added to every IMU stamp, ns.
+    imu_clock_drift_ppm : float
+        The IMU stamp gains this many ns per ms of true time (ppm).
     clock_jumps_ns : tuple of (int, int)
         (at, jump) pairs, ns, sorted by ``at``: from true time ``at`` on the sensor
         stamps are ``jump`` later (cumulative).
@@ -99,10 +104,12 @@ class SensorFaults:
     imu_burst_ns: int = 0
     imu_stamp_offset_ns: int = 0
     clock_jumps_ns: tuple = ()
+    imu_clock_drift_ppm: float = 0.0
 
     @classmethod
     def from_parameters(cls, imu_dropouts_s=(), camera_dropouts_s=(), imu_burst_s=0.0,
-                        imu_stamp_offset_s=0.0, sensor_clock_jumps_s=()):
+                        imu_stamp_offset_s=0.0, sensor_clock_jumps_s=(),
+                        imu_clock_drift_ppm=0.0):
         """The schedule of the rig parameters of the same names (seconds).
 
         Parameters
@@ -115,6 +122,8 @@ class SensorFaults:
             IMU stamp offset, s (finite, either sign).
         sensor_clock_jumps_s : sequence of float
             Flat pairs [at_s, jump_s, ...]; at_s ≥ 0, jump_s finite (either sign).
+        imu_clock_drift_ppm : float
+            IMU clock drift against the camera's, ppm (finite, |drift| < 1000).
 
         Raises
         ------
@@ -137,7 +146,11 @@ class SensorFaults:
             raise ValueError(f'imu_burst_s {imu_burst_s:g} s is shorter than 1 ns')
         if not _finite(imu_stamp_offset_s):
             raise ValueError(f'imu_stamp_offset_s must be finite, got {imu_stamp_offset_s}')
+        if not _finite(imu_clock_drift_ppm) or abs(imu_clock_drift_ppm) >= 1000.0:
+            raise ValueError(f'imu_clock_drift_ppm must be finite and within +-1000, got '
+                             f'{imu_clock_drift_ppm}')
         return cls(imu_dropouts_ns=_windows('imu_dropouts_s', imu_dropouts_s),
+                   imu_clock_drift_ppm=float(imu_clock_drift_ppm),
                    camera_dropouts_ns=_windows('camera_dropouts_s', camera_dropouts_s),
                    imu_burst_ns=burst_ns, imu_stamp_offset_ns=_to_ns(imu_stamp_offset_s),
                    clock_jumps_ns=tuple(sorted(jumps, key=lambda j: j[0])))
@@ -147,13 +160,14 @@ class SensorFaults:
     def active(self):
         """True when any fault is configured."""
         return bool(self.imu_dropouts_ns or self.camera_dropouts_ns or self.imu_burst_ns
-                    or self.imu_stamp_offset_ns or self.clock_jumps_ns)
+                    or self.imu_stamp_offset_ns or self.clock_jumps_ns
+                    or self.imu_clock_drift_ppm)
 
     @property
     def imu_faults(self):
         """True when any fault acts on the IMU's samples or stamps."""
         return bool(self.imu_dropouts_ns or self.imu_burst_ns or self.imu_stamp_offset_ns
-                    or self.clock_jumps_ns)
+                    or self.clock_jumps_ns or self.imu_clock_drift_ppm)
 
     @property
     def camera_faults(self):
@@ -171,6 +185,8 @@ class SensorFaults:
             parts.append(f'IMU bursts every {self.imu_burst_ns / NS_PER_S:g} s')
         if self.imu_stamp_offset_ns:
             parts.append(f'IMU stamps {self.imu_stamp_offset_ns / NS_PER_S:+g} s')
+        if self.imu_clock_drift_ppm:
+            parts.append(f'IMU clock drift {self.imu_clock_drift_ppm:+.2f} ppm')
         if self.clock_jumps_ns:
             parts.append('sensor clock jumps ' + ', '.join(
                 f'{j / NS_PER_S:+g} s at {a / NS_PER_S:g} s' for a, j in self.clock_jumps_ns))
@@ -202,8 +218,13 @@ class SensorFaults:
         return stamp_ns + self.clock_jump_ns(t_ns) if self.clock_jumps_ns else stamp_ns
 
     def imu_stamp_ns(self, stamp_ns, t_ns):
-        """Published stamp of an IMU sample: the sensor stamp plus the IMU's offset."""
-        return self.sensor_stamp_ns(stamp_ns, t_ns) + self.imu_stamp_offset_ns
+        """Published stamp of an IMU sample: the sensor stamp plus the IMU's offset and
+        drift.
+        """
+        stamp = self.sensor_stamp_ns(stamp_ns, t_ns) + self.imu_stamp_offset_ns
+        if self.imu_clock_drift_ppm:
+            stamp += int(round(self.imu_clock_drift_ppm * 1e-6 * t_ns))
+        return stamp
 
     def imu_release_ns(self, t_ns):
         """Simulated time from which the IMU sample of true time ``t_ns`` may be published:
