@@ -127,6 +127,10 @@ CORE_PARAMETERS = (
                                         0.0, 3600.0)),
     ('border_margin_px', 2, _int('A spot this close to the left/right border is cut.',
                                  0, 100)),
+    ('frame_rate_hz', 30.0, _float('Camera frame rate: packets are assembled on its period '
+                                   '(image stamp jitter averaged out); 0 or a rate the '
+                                   'stamps contradict = the stamps as they are, frames/s.',
+                                   0.0, 1000.0)),
 )
 NODE_PARAMETERS = (
     ('lamp_map_path', '', _str("Lamp map YAML; '' = vlc_stereo_camera's installed map.")),

@@ -34,7 +34,11 @@ class DecoderConfig:
         ``track_gate_px`` association gate, ``track_max_missed_frames``,
         ``max_fragments`` frames of stripes kept per lamp; ``stamp_jump_reset_s``: a
         frame stamped more than this before the previous one (a looped bag, a restarted
-        camera) resets every track, so fragments are never mixed across the jump.
+        camera) resets every track, so fragments are never mixed across the jump;
+        ``frame_rate_hz``: the camera's frame rate, on whose period each lamp's packet
+        is assembled (:class:`~vlc_decoder.core.frame_grid.FrameGrid`: a driver's stamp
+        jitter does not reach the assembly; 0 or a rate the stamps contradict: the
+        stamps as they are).
     """
 
     row_time_s: float = 30e-6
@@ -60,6 +64,7 @@ class DecoderConfig:
     max_fragments: int = 120
     stamp_jump_reset_s: float = 0.05
     border_margin_px: int = 2
+    frame_rate_hz: float = 30.0
 
     def __post_init__(self):
         if not (self.row_time_s > 0 and self.exposure_s > 0 and self.chip_rate_hz > 0):
@@ -68,6 +73,8 @@ class DecoderConfig:
             raise ValueError('off_level must be in [0, 0.5)')
         if not self.stamp_jump_reset_s >= 0.0:
             raise ValueError('stamp_jump_reset_s must be >= 0')
+        if not self.frame_rate_hz >= 0.0:
+            raise ValueError('frame_rate_hz must be >= 0')
         if not self.psf_sigma_px >= 0.0:
             raise ValueError('psf_sigma_px must be >= 0')
         if not 0.0 < self.chip_margin < 0.5:

@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from vlc_decoder.core.assembly import CONFIRMED, PacketAssembler
+from vlc_decoder.core.frame_grid import FrameGrid
 from vlc_decoder.core.spots import detect
 
 LOG = logging.getLogger(__name__)
@@ -73,6 +74,8 @@ class _Track:
     missed: int = 0
     seen: int = 0
     anomaly_reported: bool = False
+    # the track's timeline on the frame grid (FrameGrid.anchor), None: the stamps
+    timeline: tuple = None
     # (stamp_ns, u, v, spot height px) of the latest observations: the lamp's path
     history: list = field(default_factory=list)
 
@@ -329,6 +332,9 @@ class LampTracker:
         self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
         self.last_stamp_ns = None
         self.resets = 0              # times the tracks were dropped for a stamp jump
+        # frame numbers on the camera's period: each track's packet on its own timeline
+        self.frames = FrameGrid(cfg.frame_rate_hz)
+        self._grid_warned = False
         # (last stamp ns, (times, positions, heights)) of dropped tracks: their paths
         self._paths = []
 
@@ -337,6 +343,7 @@ class LampTracker:
         self.tracks = []
         self.last_stamp_ns = None
         self._paths = []
+        self.frames.reset()
         self.resets += 1
 
     def stamp_jumped_back(self, stamp_ns):
@@ -381,6 +388,13 @@ class LampTracker:
         if self.last_stamp_ns is not None and stamp_ns <= self.last_stamp_ns:
             raise ValueError(f'stamp {stamp_ns} ns is not after {self.last_stamp_ns} ns')
         self.last_stamp_ns = stamp_ns
+        self.frames.add(stamp_ns)
+        if self.frames.checked is False and not self._grid_warned:
+            # the tracks so far placed their fragments on the wrong period: start again
+            self._grid_warned = True
+            self.tracks = []
+            LOG.warning('frame_rate_hz %g does not match the image stamps: lamp packets are '
+                        'assembled on the stamps as they are', self.cfg.frame_rate_hz)
         observations = pair_spots(left, right, self.max_disparity_px, self.rectify)
         matches = self._associate(stamp_ns, observations)
         records = []
@@ -395,6 +409,7 @@ class LampTracker:
                 track.update(stamp_ns, u, v)
                 if disparity is not None:
                     track.disparity = disparity
+            frame_ns, track.timeline = self.frames.time_ns(track.timeline, stamp_ns)
             track.missed = 0
             track.seen += 1
             spot = spot_l if spot_l is not None else spot_r
@@ -403,7 +418,7 @@ class LampTracker:
             rows, level, weight, source = combine_profiles(
                 spot_l, spot_r, self.rectify is not None, self._profile_lag(spot_l, spot_r))
             was_confirmed = track.assembler.state == CONFIRMED
-            track.assembler.add(stamp_ns, rows, level, weight)
+            track.assembler.add(frame_ns, rows, level, weight)
             records.append(self._record(track, spot_l, spot_r, rows, source, stamp_ns,
                                         was_confirmed))
         seen = {id(t) for t in matches.values()}
