@@ -5,8 +5,9 @@
 #     time): the run that must finish in under 30 minutes (it prints its wall time);
 #  2. the ablations, every positioning method side by side, lamp outage and forged lamp;
 #  3. one report over all of it, written into README.md and the companion docs;
-#  4. the paper's protocols on the realistic rig profile (2 trials per static point, 2
-#     runs per speed, a drawn installation per seed), summarised in README.md beside 3.;
+#  4. the paper's protocols on the realistic rig profile, with the same statistics (10
+#     trials per static point, 10 runs per speed, a drawn installation per seed), the
+#     README's headline table, beside 3. and the paper;
 #  5. the error budget of the realistic profile (each error source alone), its table
 #     written into README.md;
 #  6. the fault protocol (one fault per run, alone on the machine), its table written
@@ -26,8 +27,8 @@ ros2run vlc_evaluation run_evaluation --protocol full --latency --ablations \
     --ablation-trials 1 --ablation-runs 1 --companions --outage --forged --rescore \
     --out "$out" --readme README.md \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md
-ros2run vlc_evaluation run_evaluation --protocol full --trials 2 --runs 2 \
-    --rig-profile realistic --out "$out/realistic" --profile-docs README.md
+ros2run vlc_evaluation run_evaluation --protocol full --rig-profile realistic \
+    --out "$out/realistic" --profile-docs README.md
 ros2run vlc_evaluation run_evaluation --protocol none --budget --out "$out/budget" \
     --budget-docs README.md
 ros2run vlc_evaluation run_evaluation --protocol none --faults --out "$out/faults" \
