@@ -27,11 +27,15 @@ Cameras (``--camera``):
   turned 0.24° and triggered 15 µs late), the PSF widening to 1.4 px σ at the corners,
   fixed-pattern and row noise, each lamp's wall reflection, distractor lights (a signal
   every 100 m, platform lights flickering at 100 Hz) and the noise table.
-* ``both``: the two, scenario by scenario, frames interleaved (the same load on a shared
-  machine), then the ratio.
+* ``realistic``: what the camera node renders on the ``realistic`` rig profile
+  (:func:`realistic_config`): the drawn installation of seed 1 on the scenario's lamp
+  map — its true lenses, mount, row time, lamps (tilted, resized, dimmed), PSF, fixed
+  pattern and wall reflections (no distractors: they are not part of a profile).
+* ``both``: ideal and truthful, scenario by scenario, frames interleaved (the same load
+  on a shared machine), then the ratio.
 
 Usage: ``rig_benchmark [--frames N] [--scenario two_lamps|cruise_120|all]
-[--camera ideal|truthful|both]``.
+[--camera ideal|truthful|realistic|both]``.
 """
 import argparse
 import os
@@ -68,6 +72,20 @@ def truthful_config():
     return RendererConfig(optics_truth=OpticsTruth.example(), psf_sigma_corner_px=1.4,
                           fixed_pattern=FixedPatternConfig(), stray_light=StrayLightConfig(),
                           distractors=tuple(distractors), noise_table_size=1 << 22)
+
+
+def realistic_config(lamp_map, seed=1):
+    """RendererConfig of the ``realistic`` profile's installation ``seed`` on ``lamp_map``
+    (the truth the camera node renders: lenses, mount, row time, lamps, sensor).
+    """
+    from vlc_common.core.vehicle import VehicleMount
+    from vlc_stereo_camera.core.installation import draw_installation
+    inst = draw_installation('realistic', seed, VehicleMount(), lamp_map)
+    mount = inst.vehicle_truth.camera
+    return RendererConfig(mount_xyz_m=tuple(float(v) for v in mount.position_m),
+                          placement_angle_deg=mount.placement_angle_deg,
+                          pitch_deg=mount.pitch_deg, roll_deg=mount.roll_deg,
+                          **inst.renderer_fields())
 
 
 def _scenarios():
@@ -109,8 +127,9 @@ def _measure(renderers, frames):
 
 def run(name, description, lamp_map, trajectory, frames, cameras=('ideal',)):
     """Print the figures of one scenario per camera; returns {camera: (fps wall, fps CPU)}."""
-    configs = {'ideal': RendererConfig(), 'truthful': truthful_config()}
-    renderers = [StereoRenderer(configs[camera], lamp_map, trajectory, seed=1)
+    configs = {'ideal': RendererConfig, 'truthful': truthful_config,
+               'realistic': lambda: realistic_config(lamp_map)}
+    renderers = [StereoRenderer(configs[camera](), lamp_map, trajectory, seed=1)
                  for camera in cameras]
     cpu0, wall0 = time.process_time(), time.perf_counter()
     results = _measure(renderers, frames)
@@ -140,9 +159,12 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--frames', type=int, default=300)
     parser.add_argument('--scenario', default='all', choices=['all', 'two_lamps', 'cruise_120'])
-    parser.add_argument('--camera', default='ideal', choices=['ideal', 'truthful', 'both'],
+    parser.add_argument('--camera', default='ideal',
+                        choices=['ideal', 'truthful', 'realistic', 'both'],
                         help='ideal: the rectified pinhole pair (default); truthful: lens, '
-                             'skew, PSF, fixed pattern, stray light, distractors; both')
+                             'skew, PSF, fixed pattern, stray light, distractors; realistic: '
+                             'the realistic profile\'s drawn installation (seed 1); both: '
+                             'ideal and truthful')
     args = parser.parse_args(argv)
     cpu = min(os.sched_getaffinity(0))
     os.sched_setaffinity(0, {cpu})
