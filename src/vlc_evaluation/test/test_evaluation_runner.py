@@ -237,7 +237,7 @@ def test_budget_table_weights_containment_by_poses_and_writes_its_block(tmp_path
     assert figures['survey']['within_3sigma'] is None and table.count('\n') == 3
     doc = tmp_path / 'doc.md'
     doc.write_text('# x\n\n<!-- budget:begin -->\nold\n<!-- budget:end -->\n\ntail\n')
-    budget.update_docs(doc, results, 'realistic', 'run_evaluation --budget')
+    budget.update_docs(doc, table, figures, 'run_evaluation --budget')
     text = doc.read_text()
     assert 'old' not in text and text.endswith('tail\n') and '`survey`' in text
     assert 'seeds 1, 2' in text

@@ -228,20 +228,21 @@ def main(argv=None):
         groups.update(ablations.ablation_groups(
             trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
             realtime_factor=args.realtime_factor))
-    if args.budget:
+
+    def check_profile(name):
+        """Exit 2 naming the file and field unless ``name`` is a usable rig profile."""
         from vlc_stereo_camera.core.installation import ProfileError, load_profile
         try:
-            load_profile(f'{args.budget_profile}/none')
+            load_profile(name)
         except ProfileError as exc:
             parser.exit(2, f'run_evaluation: error: {exc}\n')
+
+    if args.budget:
+        check_profile(f'{args.budget_profile}/none')
     fault_scenarios = (faults.fault_scenarios(args.fault_speed, names=args.fault_names)
                        if args.faults else [])
     if args.rig_profile != 'ideal':
-        from vlc_stereo_camera.core.installation import ProfileError, load_profile
-        try:
-            load_profile(args.rig_profile)
-        except ProfileError as exc:
-            parser.exit(2, f'run_evaluation: error: {exc}\n')
+        check_profile(args.rig_profile)
         for name, group in list(groups.items()) + [('faults', fault_scenarios)]:
             for scenario in group if name != 'replay' else ():
                 scenario.rig_profile, scenario.calibration = args.rig_profile, args.calibration
@@ -309,7 +310,7 @@ def main(argv=None):
             stream.write(added)
         text += added
         for path in args.budget_docs:
-            budget.update_docs(path, results, args.budget_profile, command)
+            budget.update_docs(path, table, figures, command)
             print(f'{path}: budget section rewritten')
     if kinds:
         added = companions.append_to_report(out, results.get('companions', ()),

@@ -178,12 +178,12 @@ class ScenarioConfig:
 
     def sensor_faults(self):
         """The SensorFaults these parameters describe (raises ValueError if invalid)."""
+        offset_s, drift_ppm = draw_imu_clock(self.profile(), self.seed)
         faults = SensorFaults.from_parameters(
             imu_dropouts_s=self.imu_dropouts_s, camera_dropouts_s=self.camera_dropouts_s,
             imu_burst_s=self.imu_burst_s,
-            imu_stamp_offset_s=self.imu_stamp_offset_s + self.imu_clock_offset_s(),
-            sensor_clock_jumps_s=self.sensor_clock_jumps_s,
-            imu_clock_drift_ppm=self.imu_clock_drift_ppm())
+            imu_stamp_offset_s=self.imu_stamp_offset_s + offset_s,
+            sensor_clock_jumps_s=self.sensor_clock_jumps_s, imu_clock_drift_ppm=drift_ppm)
         faults.check_epoch(epoch_to_ns(self.epoch_s))
         return faults
 

@@ -804,14 +804,14 @@ def draw_installation(profile, seed, vehicle, lamp_map=None, nominal=NominalCame
     if isinstance(profile, str):
         profile = load_profile(profile)
     optics, row_time = draw_optics(profile, seed, nominal)
-    truth, belief, offset = draw_vehicle(profile, seed, vehicle)
+    truth, belief, _ = draw_vehicle(profile, seed, vehicle)
+    offset, drift = draw_imu_clock(profile, seed)
     calibration, error = draw_calibration(profile, seed, optics, nominal,
                                           camera_name=vehicle.vehicle_id or 'stereo')
     inst = Installation(profile=profile, seed=int(seed), nominal=nominal, optics=optics,
                         row_time_s=row_time, vehicle_truth=truth, vehicle_belief=belief,
                         imu_clock_offset_s=offset, calibration=calibration,
-                        calibration_error=error,
-                        imu_clock_drift_ppm=draw_imu_clock(profile, seed)[1])
+                        calibration_error=error, imu_clock_drift_ppm=drift)
     if lamp_map is not None:
         inst.lamp_map_truth, inst.lamp_map_belief, inst.lamp_draws = draw_line(
             profile, seed, lamp_map)
