@@ -154,6 +154,17 @@ def test_custom_frame_ids_and_no_clock(context):
     assert (got['odom'][0].header.frame_id, got['odom'][0].child_frame_id) == ('world', 'train')
 
 
+def test_clock_tail_ends_on_its_last_tick(context):
+    # With a tail, /clock ends exactly at duration_s + clock_tail_s (off the 10 ms grid
+    # here): an IMU that follows /clock for that long sees its last sample due and exits.
+    node, got = run_node(context, {'duration_s': 0.1, 'clock_tail_s': 0.0975,
+                                   'realtime_factor': 0.0, 'noise_bank_size': 1})
+    assert node.finished.result() == 0
+    clock = [_ns(m.clock) for m in got['clock']]
+    assert clock[-1] == EPOCH_NS + 197_500_000
+    assert clock[:-1] == [EPOCH_NS + j * 10 ** 7 for j in range(20)][-(len(clock) - 1):]
+
+
 @pytest.mark.parametrize('name, value, error', [
     ('fps', 0.0, ParameterException),
     ('chip_rate_hz', 50000.0, ParameterException),

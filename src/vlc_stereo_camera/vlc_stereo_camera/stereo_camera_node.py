@@ -15,7 +15,8 @@ simulated clock and publishes (relative names unless stated):
 * ``ground_truth/spots`` (sensor_msgs/PointCloud2; reliable, depth 10): per-lamp truth,
   fields in ``conversions.py`` / docs/arch/vlc_stereo_camera.md.
 * ``/clock`` (rosgraph_msgs/Clock; reliable, depth 10; absolute, as ROS time sources
-  expect) at ``clock_rate_hz`` when ``publish_clock``: exact ticks epoch + j/rate.
+  expect) at ``clock_rate_hz`` when ``publish_clock``: exact ticks epoch + j/rate; with
+  ``duration_s`` and ``clock_tail_s`` > 0 a last tick at epoch + duration_s + clock_tail_s.
 * ``diagnostics`` (diagnostic_msgs/DiagnosticArray; reliable, depth 10) at 1 Hz wall
   time: frames rendered, render time, lamps in view, lag behind real time.
 
@@ -165,7 +166,8 @@ NODE_PARAMETERS = (
     ('publish_clock', True, _desc('Publish /clock (simulated time).')),
     ('clock_rate_hz', 100.0, _desc('/clock publication rate, Hz (simulated).', 1.0, 10000.0)),
     ('clock_tail_s', 0.0, _desc('With duration_s: /clock runs this much simulated time past '
-                                'the last frame (the IMU, which follows /clock, with it), s.',
+                                'duration_s, a last tick at duration_s + clock_tail_s '
+                                '(the IMU, which follows /clock, with it), s.',
                                 0.0, 60.0)),
     ('wait_for_subscribers', 0, _desc('Hold simulated time at 0 until both image topics '
                                       'have this many subscribers (0 = start at once).',
@@ -407,6 +409,7 @@ class StereoCameraNode(Node):
             self._stop.wait(0.05)
         wall0 = time.monotonic()
         tick = 0
+        end_ticked = False
         frame = None
         frames_done = False
         while not self._stop.is_set():
@@ -417,8 +420,13 @@ class StereoCameraNode(Node):
                     break
             t_frame = frame.t0_s + self._readout_s if frame is not None else np.inf
             t_tick = tick / cfg.clock_rate_hz if self.pub_clock is not None else np.inf
-            if cfg.duration_s > 0.0 and t_tick >= cfg.duration_s + cfg.clock_tail_s:
-                t_tick = np.inf
+            if cfg.duration_s > 0.0:
+                # ticks over [0, duration_s + clock_tail_s); with a tail, a last tick at
+                # its end, also off the j/rate grid: a follower (the IMU, duration_s +
+                # clock_tail_s) must see its last sample due
+                t_end = cfg.duration_s + cfg.clock_tail_s
+                if t_tick >= t_end:
+                    t_tick = t_end if cfg.clock_tail_s > 0.0 and not end_ticked else np.inf
             t_next = min(t_frame, t_tick)
             if not np.isfinite(t_next):
                 break
@@ -438,6 +446,7 @@ class StereoCameraNode(Node):
                 self.pub_clock.publish(ClockMsg(clock=conversions.ns_to_stamp(ns)))
                 self._sim_ns = ns
                 tick += 1
+                end_ticked = cfg.duration_s > 0.0 and t_tick >= t_end
             else:
                 self._publish_frame(frame)
                 frame = None
