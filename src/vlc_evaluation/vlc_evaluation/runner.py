@@ -298,6 +298,17 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
             recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
                                     f'seed={scenario.seed}',
                                     f'installation={out_dir / f"{scenario.name}.installation"}']
+        if not replay:
+            # The rig first: the camera builds its renderer (the longest construction)
+            # while the other nodes start, and holds simulated time until the decoder,
+            # the spot locator, the probe's gate (, the recorder) subscribe to its images.
+            camera = {}
+            if belief and scenario.calibration == 'checkerboard':
+                belief_dir = pathlib.Path(belief['vehicle_path']).parent
+                camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
+                                               str(belief_dir / 'right.yaml')]
+            _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
+                       + int('/stereo/left/image_raw' in recorded_topics), camera)
         graph.start(*RECORDER, dict(recorder, **scenario.node_params.get('bag_recorder', {})),
                     [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
@@ -317,15 +328,6 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
             required = {t: n - (t in recorded_topics and t in REPLAYED_TOPICS)
                         for t, n in required.items()
                         if t not in ('/clock', '/ground_truth/pose', '/ground_truth/spots')}
-        else:
-            # decoder, spot locator, the probe's gate (, the recorder)
-            camera = {}
-            if belief and scenario.calibration == 'checkerboard':
-                belief_dir = pathlib.Path(belief['vehicle_path']).parent
-                camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
-                                               str(belief_dir / 'right.yaml')]
-            _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
-                       + int('/stereo/left/image_raw' in recorded_topics), camera)
         mark('started')
         missing = probe.wait_for_subscribers(required, READY_TIMEOUT_S, abort=died)
         mark('ready')
