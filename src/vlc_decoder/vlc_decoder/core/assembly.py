@@ -623,13 +623,17 @@ class PacketAssembler:
         is unique when the sightings are a few frames apart, and gives the rate.
         """
         cfg = self.cfg
-        starts = [t for frag in self.fragments for t in self._own_starts(frag)]
-        if len(starts) < 2:
-            return
         lo = cfg.chip_rate_hz * (1 - cfg.rate_search_tolerance)
         hi = cfg.chip_rate_hz * (1 + cfg.rate_search_tolerance)
-        for j in range(len(starts) - 1, 0, -1):
-            dt = starts[j] - starts[j - 1]
+        # the latest pair of consecutive sightings that gives the rate: the sightings
+        # are read newest first and only as far back as that pair (each one costs a
+        # clock fit and a read of its fragment, and in content mode the rate, which
+        # keys their cache, changes at every frame)
+        starts = (t for frag in reversed(self.fragments) for t in
+                  reversed(self._own_starts(frag)))
+        later = next(starts, None)
+        for earlier in starts:
+            dt, later = later - earlier, earlier
             if dt <= 0:
                 continue
             packets = np.arange(np.ceil(lo * dt / PACKET_CHIPS),
