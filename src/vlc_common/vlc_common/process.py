@@ -112,6 +112,31 @@ class _StopSignals:
             raise KeyboardInterrupt
 
 
+#: Environment variable: a directory where every node writes a cProfile of its spin
+#: (``<name>.<pid>.prof``, read with ``pstats``), for finding where a live graph's CPU
+#: goes (docs/ARCHITECTURE.md, process conventions). Unset: no profiling.
+PROFILE_DIR_ENV = 'VLC_PROFILE_DIR'
+
+
+def _profiled(spin, name):
+    """``spin`` under cProfile when :data:`PROFILE_DIR_ENV` names a directory."""
+    directory = os.environ.get(PROFILE_DIR_ENV)
+    if not directory:
+        return spin
+
+    def run(node):
+        import cProfile
+        profile = cProfile.Profile()
+        profile.enable()
+        try:
+            return spin(node)
+        finally:
+            profile.disable()
+            os.makedirs(directory, exist_ok=True)
+            profile.dump_stats(os.path.join(directory, f'{name}.{os.getpid()}.prof'))
+    return run
+
+
 def _spin(node):
     import rclpy
     spin_until_shutdown(lambda: rclpy.spin(node))
@@ -156,7 +181,7 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
         stopper.spinning = True
         if stopper.received:
             return 0
-        code = spin(node) or 0
+        code = _profiled(spin, name)(node) or 0
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ParameterException, ValueError, OSError, *startup_errors) as exc:
