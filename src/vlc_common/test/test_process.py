@@ -39,3 +39,21 @@ def test_runtime_error_is_a_stop_only_once_the_context_is_shut_down():
     spin_until_shutdown(_raise(convert), context=ctx)
     with pytest.raises(ValueError):
         spin_until_shutdown(_raise(ValueError('bug')), context=ctx)
+
+
+def test_profile_dir_writes_a_profile_of_the_spin(tmp_path, monkeypatch):
+    import os
+    import pstats
+
+    from vlc_common.process import PROFILE_DIR_ENV, _profiled
+
+    def spin(node):
+        return sum(range(1000)) and 7
+
+    monkeypatch.delenv(PROFILE_DIR_ENV, raising=False)
+    assert _profiled(spin, 'n') is spin                  # unset: nothing wraps the spin
+    monkeypatch.setenv(PROFILE_DIR_ENV, str(tmp_path / 'prof'))
+    assert _profiled(spin, 'some_node')(None) == 7       # the spin's exit code
+    written = list((tmp_path / 'prof').iterdir())
+    assert [p.name for p in written] == [f'some_node.{os.getpid()}.prof']
+    assert any(key[2] == 'spin' for key in pstats.Stats(str(written[0])).stats)
