@@ -176,7 +176,7 @@ NODE_PARAMETERS = (
     ('heading_aiding_std_rad', 1.0 * DEG,
      _desc('1 sigma of the heading of an attitude_aiding message without a usable '
            'covariance, rad.', 1e-6, 1.0)),
-    ('poll_period_s', 0.005, _desc('imu/data_raw is taken in batches this often (steady '
+    ('poll_period_s', 0.01, _desc('imu/data_raw is taken in batches this often (steady '
                                    'clock), off the executor; 0 = a callback per sample, s.',
                                    0.0, 0.05)),
     ('diagnostics_period_s', 1.0, _desc('Wall-clock period of diagnostics, s.', 0.05, 60.0)),
