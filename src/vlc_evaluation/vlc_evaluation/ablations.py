@@ -61,7 +61,10 @@ def ablation_groups(points_m=STATIC_POINTS_M, trials=2, speeds_kmh=SPEEDS_KMH, r
     return groups
 
 
-def _summary(static, dynamic):
+def protocol_summary(static, dynamic):
+    """Static summary, dynamic summary per speed and the largest every-pose error of one
+    row's results (the ablation and the error-budget tables).
+    """
     s = metrics.summarize([r['error_m'] for r in static if r.get('error_m') is not None],
                           misses=sum(1 for r in static if r.get('error_m') is None))
     by_speed = {}
@@ -77,8 +80,7 @@ def _summary(static, dynamic):
             'every_pose_max_m': max((e['max_m'] for e in every), default=None)}
 
 
-def _cm(value):
-    return '–' if value is None or not np.isfinite(value) else f'{100.0 * value:.2f}'
+_cm = metrics.cm_text
 
 
 def ablation_table(results, variants=VARIANTS):
@@ -90,7 +92,7 @@ def ablation_table(results, variants=VARIANTS):
         static = results.get(f'{GROUP_PREFIX}{name}/static', [])
         dynamic = results.get(f'{GROUP_PREFIX}{name}/dynamic', [])
         if static or dynamic:
-            figures[name] = dict(_summary(static, dynamic), label=label, params=params)
+            figures[name] = dict(protocol_summary(static, dynamic), label=label, params=params)
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})
     head = ('| variant | static max (cm) | static mean (cm) | static misses | '
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)

@@ -15,7 +15,7 @@ runs once per row, on the same points, speeds and seeds:
 The rows do not add up: errors partly cancel, and the receivers' stated uncertainty is
 the same in every row (they do not know which source is on).
 """
-from vlc_evaluation import ablations, scenarios
+from vlc_evaluation import ablations, metrics, scenarios
 
 STATIC_POINTS_M = (9.0, 5.0, 2.0)
 SPEEDS_KMH = (40, 100)
@@ -73,7 +73,7 @@ def budget_table(results, profile='realistic'):
         static = results.get(f'{GROUP_PREFIX}{name}/static', [])
         dynamic = results.get(f'{GROUP_PREFIX}{name}/dynamic', [])
         if static or dynamic:
-            figures[name] = dict(ablations._summary(static, dynamic), label=label,
+            figures[name] = dict(ablations.protocol_summary(static, dynamic), label=label,
                                  rig_profile=rig_profile,
                                  within_3sigma=_within_3sigma(dynamic),
                                  seeds=sorted({r['seed'] for r in static + dynamic
@@ -83,7 +83,7 @@ def budget_table(results, profile='realistic'):
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
             + ' | dynamic poses within 3σ | misses |')
     rows = [head, '|' + '---|' * (4 + len(speeds))]
-    cm = ablations._cm
+    cm = metrics.cm_text
     for name, fig in figures.items():
         s = fig['static']
         cells = [f'{cm(fig["dynamic"][v]["max_m"])} / {cm(fig["dynamic"][v]["mean_m"])}'

@@ -136,8 +136,7 @@ def score_ins_beacon(bag_path, **kwargs):
     return score_bag(bag_path, ('ins_beacon',), **kwargs)['ins_beacon']
 
 
-def _cm(value):
-    return '–' if value is None or not math.isfinite(value) else f'{100.0 * value:.2f}'
+_cm = metrics.cm_text
 
 
 def _ms(value):

@@ -581,8 +581,7 @@ def score_kind(run, scenario):
 
 # --- tables ------------------------------------------------------------------------
 
-def _cm(value):
-    return '–' if value is None or not np.isfinite(value) else f'{100.0 * value:.2f}'
+_cm = metrics.cm_text
 
 
 def _m(value):

@@ -55,6 +55,11 @@ class ErrorSummary:
         return asdict(self)
 
 
+def cm_text(value):
+    """A length in metres as centimetres with two decimals for a table; '–' for none."""
+    return '–' if value is None or not np.isfinite(value) else f'{100.0 * value:.2f}'
+
+
 def summarize(errors_m, misses=0):
     """Summary statistics of absolute errors (NaNs are counted as misses)."""
     e = np.abs(np.asarray(errors_m, dtype=float).ravel())

@@ -20,8 +20,7 @@ PAPER_DYNAMIC = {20: {'max_cm': 32.09, 'mean_cm': 11.07, 'p75_cm': 18.0},
                  100: {'max_cm': 36.11, 'mean_cm': 17.68, 'p75_cm': 23.5}}
 
 
-def _cm(value):
-    return '–' if value is None or not np.isfinite(value) else f'{100.0 * value:.2f}'
+_cm = metrics.cm_text
 
 
 def _paper(value):
