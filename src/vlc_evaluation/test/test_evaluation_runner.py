@@ -259,3 +259,12 @@ def test_param_text_quotes_strings_in_lists_so_a_colon_stays_in_them():
     text = param_text(['rig_profile=realistic/only:lens', 'seed=1', 2.5, True])
     assert yaml.safe_load(text) == ['rig_profile=realistic/only:lens', 'seed=1', 2.5, True]
     assert param_text([1, 2]) == '[1,2]' and param_text(False) == 'false'
+
+
+@pytest.mark.parametrize('fixed, paces', [(False, [0.5, 0.25, 0.15]), (True, [1.0, 1.0, 1.0])])
+def test_fixed_pace_keeps_every_run_at_the_starting_pace(fixed, paces):
+    # each job finds its lane as the previous one left it, then reports a degraded run
+    def job(lane):
+        lane.slow_down()
+        return lane.pace
+    assert runner.run_jobs([job] * 3, lanes=1, spawn='exec', fixed_pace=fixed) == paces

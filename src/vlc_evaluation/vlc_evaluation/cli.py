@@ -111,6 +111,10 @@ def main(argv=None):
                              'highest: a lane slows down while nodes fall behind)')
     parser.add_argument('--retries', type=int, default=1,
                         help='runs again, slower, a scenario in which a node fell behind')
+    parser.add_argument('--fixed-pace', action='store_true',
+                        help='no lane ever slows down: every run at --realtime-factor (one '
+                             'lane) or half of it (several), degraded or not; with --lanes 1 '
+                             '--retries 0 the live graph\'s real-time benchmark')
     parser.add_argument('--replay-bag', action='append', default=[],
                         help='also replay this sensor bag (e.g. bags/sample_80kmh) through the '
                              'processing nodes with bag_player and score it (repeatable)')
@@ -261,7 +265,8 @@ def main(argv=None):
     try:
         results = scenarios.run_protocols(groups, out, lamp_map, lanes=args.lanes,
                                           spawn=args.spawn, progress=progress,
-                                          rescore=args.rescore, retries=args.retries)
+                                          rescore=args.rescore, retries=args.retries,
+                                          fixed_pace=args.fixed_pace)
         latency_results = []
         protocols_s = time.monotonic() - started
         if args.latency:

@@ -429,8 +429,12 @@ def lane_domains(lanes, pid=None):
     return [base + i for i in range(lanes)]
 
 
-def run_jobs(jobs, lanes=2, spawn='fork', on_done=None):
+def run_jobs(jobs, lanes=2, spawn='fork', on_done=None, fixed_pace=False):
     """Run ``jobs`` (callables ``job(lane)``) on ``lanes`` parallel lanes.
+
+    ``fixed_pace``: a lane keeps its starting pace (its floor is that pace), so a run in
+    which a node fell behind does not slow the next ones: how a live graph at a given
+    real-time factor fares, run after run.
 
     Each lane is a thread with its own DDS domain and probe; the longest jobs should
     come first (the caller orders them). ``on_done(index, result)`` is called as each
@@ -452,6 +456,8 @@ def run_jobs(jobs, lanes=2, spawn='fork', on_done=None):
         # probe upwards from there (Lane.ceiling).
         start = 1.0 if lanes == 1 else 0.5
         lane = Lane(domain_id, spawner, abort=abort, pace=start, ceiling=start)
+        if fixed_pace:
+            lane.min_pace = start
         while not errors and not abort.is_set():
             try:
                 i, job = todo.get_nowait()

@@ -327,12 +327,13 @@ def _run_with_retries(scenario, bag_dir, lane, lamp_map, retries):
 
 
 def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=None,
-                  rescore=False, retries=1):
+                  rescore=False, retries=1, fixed_pace=False):
     """Run and score groups of scenarios; bags in ``out_dir/<group>/``.
 
     ``groups``: ``{group: [Scenario]}``. All scenarios share the ``lanes`` parallel lanes
     (longest first, so the lanes finish together); a degraded run is repeated up to
-    ``retries`` times, slower (:func:`_run_with_retries`). Returns ``{group: [result]}``
+    ``retries`` times, slower (:func:`_run_with_retries`); with ``fixed_pace`` no lane
+    ever slows down (every run at its real-time factor). Returns ``{group: [result]}``
     in scenario order, also written to ``out_dir/<group>/results.jsonl``. With
     ``rescore`` the graph is not run: the bags already there are scored again.
     """
@@ -391,7 +392,8 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
             on_done(None, ordered[-1])
     else:
         from vlc_evaluation.runner import run_jobs
-        ordered = run_jobs(jobs, lanes=lanes, spawn=spawn, on_done=on_done)
+        ordered = run_jobs(jobs, lanes=lanes, spawn=spawn, on_done=on_done,
+                           fixed_pace=fixed_pace)
     results = [None] * len(items)
     for k, i in enumerate(order):
         results[i] = ordered[k]
