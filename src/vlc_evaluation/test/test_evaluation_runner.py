@@ -268,29 +268,3 @@ def test_fixed_pace_keeps_every_run_at_the_starting_pace(fixed, paces):
         lane.slow_down()
         return lane.pace
     assert runner.run_jobs([job] * 3, lanes=1, spawn='exec', fixed_pace=fixed) == paces
-
-
-def test_rig_nice_lowers_both_rig_nodes_only():
-    class Graph:
-        def __init__(self):
-            self.started = {}
-
-        def config_file(self, package, name):
-            return f'{package}/{name}'
-
-        def start(self, package, executable, params=None, params_files=(), nice=0, **_):
-            self.started[executable] = nice
-
-    for rig_nice in (0, 7):
-        graph = Graph()
-        scenario = scenarios.Scenario('s', rig_nice=rig_nice)
-        runner._start_rig(graph, scenario, 3)
-        assert graph.started == {'adis16488_node': rig_nice, 'stereo_camera_node': rig_nice}
-
-
-def test_rig_nice_out_of_range_exits_2(tmp_path, capsys):
-    from vlc_evaluation import cli
-    with pytest.raises(SystemExit) as stop:
-        cli.main(['--protocol', 'none', '--rig-nice', '25', '--out', str(tmp_path)])
-    assert stop.value.code == 2
-    assert '--rig-nice 25 is not in 0-19' in capsys.readouterr().err

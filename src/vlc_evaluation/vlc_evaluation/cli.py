@@ -111,9 +111,6 @@ def main(argv=None):
                              'highest: a lane slows down while nodes fall behind)')
     parser.add_argument('--retries', type=int, default=1,
                         help='runs again, slower, a scenario in which a node fell behind')
-    parser.add_argument('--rig-nice', type=int, default=0,
-                        help='run the rig (camera and IMU nodes) at this lower CPU priority '
-                             '(nice 0-19): the simulator yields the cores to the receivers')
     parser.add_argument('--fixed-pace', action='store_true',
                         help='no lane ever slows down: every run at --realtime-factor (one '
                              'lane) or half of it (several), degraded or not; with --lanes 1 '
@@ -259,11 +256,6 @@ def main(argv=None):
             args.budget_profile, trials=args.budget_trials, runs=args.budget_runs,
             observe_s=args.observe_s, realtime_factor=args.realtime_factor,
             first_seed=args.first_seed))
-    if not 0 <= args.rig_nice <= 19:
-        parser.exit(2, f'run_evaluation: error: --rig-nice {args.rig_nice} is not in 0-19\n')
-    for name, group in list(groups.items()) + [('faults', fault_scenarios)]:
-        for scenario in group if name != 'replay' else ():
-            scenario.rig_nice = args.rig_nice
     total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
 

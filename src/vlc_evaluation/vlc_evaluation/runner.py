@@ -247,8 +247,7 @@ def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
     graph.start('vlc_stereo_camera', 'adis16488_node',
                 dict(rig, duration_s=float(scenario.duration_s) + IMU_TAIL_S,
                      **scenario.node_params.get('adis16488_node', {})),
-                rig_files + [graph.config_file('vlc_stereo_camera', 'adis16488_node.yaml')],
-                nice=scenario.rig_nice)
+                rig_files + [graph.config_file('vlc_stereo_camera', 'adis16488_node.yaml')])
     # The camera constructs its renderer meanwhile and then holds simulated time
     # until the decoder, the spot locator (, the recorder) and the probe's gate
     # subscribe to its images.
@@ -257,8 +256,7 @@ def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
                      wait_for_subscribers=camera_subscribers,
                      **{**(camera_params or {}),
                         **scenario.node_params.get('stereo_camera_node', {})}),
-                rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')],
-                nice=scenario.rig_nice)
+                rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])
 
 
 def run_scenario(scenario, out_dir, lane, recorded_topics):

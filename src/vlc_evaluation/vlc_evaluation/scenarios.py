@@ -71,10 +71,7 @@ class Scenario:
     ``calibration`` ``drawn`` (the installation's calibration: the truth perturbed by a
     calibration's errors) or ``checkerboard`` (an actual ``stereo_calibrate`` of boards
     rendered through the true lenses, ``calibrate_installation``; the camera node then
-    publishes it through ``calibration_paths``). ``rig_nice`` > 0 runs the rig's two
-    nodes (camera and IMU) at that lower CPU priority: the simulator stands in for
-    sensors that do their own work on their own silicon on a train, and yields the
-    cores to the receivers (the live benchmark with and without it, docs/arch/evaluation.md).
+    publishes it through ``calibration_paths``).
     """
 
     name: str
@@ -99,7 +96,6 @@ class Scenario:
     lean_recording: bool = False
     rig_profile: str = 'ideal'
     calibration: str = 'drawn'
-    rig_nice: int = 0
 
     @property
     def is_replay(self):
