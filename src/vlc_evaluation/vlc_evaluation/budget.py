@@ -54,7 +54,7 @@ def budget_groups(profile='realistic', points_m=STATIC_POINTS_M, trials=2,
     return groups
 
 
-def _within_3sigma(dynamic):
+def within_3sigma(dynamic):
     """Share of every published pose within its 3σ over the dynamic runs (pose-count
     weighted), or None.
     """
@@ -75,7 +75,7 @@ def budget_table(results, profile='realistic'):
         if static or dynamic:
             figures[name] = dict(ablations.protocol_summary(static, dynamic), label=label,
                                  rig_profile=rig_profile,
-                                 within_3sigma=_within_3sigma(dynamic),
+                                 within_3sigma=within_3sigma(dynamic),
                                  seeds=sorted({r['seed'] for r in static + dynamic
                                                if r.get('seed') is not None}))
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})

@@ -10,6 +10,7 @@ Examples::
     run_evaluation --protocol none --forged --out out/forged
     run_evaluation --protocol none --latency --out out/latency       # replay latency
     run_evaluation --protocol none --budget --out out/budget         # error budget
+    run_evaluation --protocol none --passes 10 --out out/passes      # multi-pass
 """
 import argparse
 import json
@@ -20,7 +21,7 @@ import sys
 import time
 
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
-from vlc_evaluation import ablations, budget, companions, faults, report, scenarios
+from vlc_evaluation import ablations, budget, companions, faults, passes, report, scenarios
 from vlc_evaluation.graph_runner import SPAWN_MODES
 from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
 
@@ -194,6 +195,22 @@ def main(argv=None):
     parser.add_argument('--budget-docs', nargs='+', default=[],
                         help='budget: also write its table between the budget markers of '
                              'these Markdown files')
+    parser.add_argument('--passes', type=int, default=0,
+                        help='also run the multi-pass protocol (evaluation/passes.py): this '
+                             'many learning passes per train, scored runs at the checkpoints')
+    parser.add_argument('--passes-profile', default='realistic',
+                        help='multi-pass: the drawn rig profile')
+    parser.add_argument('--passes-trains', type=int, nargs='+', default=[1, 2],
+                        help='multi-pass: installation seeds, one train each')
+    parser.add_argument('--passes-checkpoints', type=int, nargs='+',
+                        default=list(passes.CHECKPOINTS),
+                        help='multi-pass: passes learnt before the scored runs (0 = first pass)')
+    parser.add_argument('--passes-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='multi-pass: a localizer parameter for every run (YAML value), '
+                             'e.g. use_self_calibration:=true')
+    parser.add_argument('--passes-docs', nargs='+', default=[],
+                        help='multi-pass: also write its table between the passes markers of '
+                             'these Markdown files')
     parser.add_argument('--rescore', action='store_true',
                         help='do not run the graph: score the bags already in --out again')
     parser.add_argument('--readme', default='',
@@ -243,6 +260,15 @@ def main(argv=None):
 
     if args.budget:
         check_profile(f'{args.budget_profile}/none')
+    if args.passes:
+        check_profile(args.passes_profile)
+        if args.rescore:
+            parser.exit(2, 'run_evaluation: error: --passes cannot be rescored (each pass '
+                           'learns from the one before)\n')
+        try:
+            passes_params = passes.parse_params(args.passes_param)
+        except ValueError as exc:
+            parser.exit(2, f'run_evaluation: error: --passes-param: {exc}\n')
     fault_scenarios = (faults.fault_scenarios(args.fault_speed, names=args.fault_names)
                        if args.faults else [])
     if args.rig_profile != 'ideal':
@@ -281,6 +307,16 @@ def main(argv=None):
             if latency_results and not args.rescore:
                 report.append_latency_run(out, command, report.latency_table(latency_results)[1],
                                           protocols_s if results else 0.0)
+        passes_results = None
+        if args.passes:
+            passes_results = passes.run_passes(
+                out, lamp_map, trains=args.passes_trains, passes=args.passes,
+                checkpoints=args.passes_checkpoints, profile=args.passes_profile,
+                localizer_params=passes_params, lanes=args.lanes, spawn=args.spawn,
+                retries=args.retries, realtime_factor=args.realtime_factor)
+            total += sum(len(r.get(k, ())) for t in passes_results.values()
+                         for r in t.values() for k in ('static', 'dynamic')) + len(
+                             passes_results) * args.passes
         fault_results = []
         if args.faults:
             # alone on the machine too: the faults bring their own load
@@ -324,6 +360,17 @@ def main(argv=None):
         for path in args.companions_docs:
             companions.update_docs(path, added, command)
             print(f'{path}: companions section rewritten')
+    if passes_results:
+        table, _ = passes.passes_table(passes_results)
+        described = passes.describe(passes_results, args.passes, args.passes_profile,
+                                    params=passes_params)
+        added = f'\n## Multi-pass (`{args.passes_profile}`)\n\n{described}\n\n{table}\n'
+        with open(out / 'report.md', 'a', encoding='utf-8') as stream:
+            stream.write(added)
+        text += added
+        for path in args.passes_docs:
+            passes.update_docs(path, f'{described}\n\n{table}', command)
+            print(f'{path}: passes section rewritten')
     if fault_results:
         text += faults.append_to_report(out, fault_results, args.fault_speed)
         for path in args.faults_docs:

@@ -196,7 +196,7 @@ def write_installation(scenario, out_dir):
     from vlc_common.core.vehicle import load_vehicle
     from vlc_stereo_camera.core.installation import draw_installation
     camera = scenario.node_params.get('stereo_camera_node', {})
-    inst = draw_installation(scenario.rig_profile, scenario.seed,
+    inst = draw_installation(scenario.rig_profile, scenario.drawn_seed,
                              load_vehicle(camera.get('vehicle_path', '')),
                              LampMap.load(_rig_lamp_map_path(scenario)))
     folder = pathlib.Path(out_dir) / f'{scenario.name}.installation'
@@ -241,6 +241,8 @@ def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
            'realtime_factor': float(scenario.realtime_factor)}
     if scenario.rig_profile != 'ideal':
         rig['rig_profile'] = scenario.rig_profile
+        if scenario.installation_seed:
+            rig['installation_seed'] = int(scenario.installation_seed)
     rig_files = [graph.config_file('vlc_stereo_camera', 'rig.yaml')]
     # The IMU follows the camera's /clock (its default), which runs IMU_TAIL_S past the
     # last frame.
@@ -297,6 +299,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
         if belief:
             recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
                                     f'seed={scenario.seed}',
+                                    f'installation_seed={scenario.drawn_seed}',
                                     f'installation={out_dir / f"{scenario.name}.installation"}']
         if not replay:
             # The rig first: the camera builds its renderer (the longest construction)

@@ -71,7 +71,9 @@ class Scenario:
     ``calibration`` ``drawn`` (the installation's calibration: the truth perturbed by a
     calibration's errors) or ``checkerboard`` (an actual ``stereo_calibrate`` of boards
     rendered through the true lenses, ``calibrate_installation``; the camera node then
-    publishes it through ``calibration_paths``).
+    publishes it through ``calibration_paths``). ``installation_seed`` (0 = ``seed``)
+    draws the installation, ``seed`` the run (sensor noise, platform motion, IMU biases):
+    the multi-pass protocol runs one train on one line again and again (:mod:`.passes`).
     """
 
     name: str
@@ -96,6 +98,12 @@ class Scenario:
     lean_recording: bool = False
     rig_profile: str = 'ideal'
     calibration: str = 'drawn'
+    installation_seed: int = 0
+
+    @property
+    def drawn_seed(self):
+        """The seed of the drawn installation: ``installation_seed``, else ``seed``."""
+        return int(self.installation_seed) or int(self.seed)
 
     @property
     def is_replay(self):

@@ -258,8 +258,9 @@ class Adis16488Node(Node):
             f'errors {"on" if cfg.noise_enabled else "off"}')
         if cfg.scenario.rig_profile != 'ideal':
             self.get_logger().info(
-                f'rig_profile {cfg.scenario.rig_profile}, seed {cfg.scenario.seed}: the drawn '
-                f'installation (IMU lever arm {np.round(mount.position_m, 4).tolist()} m, '
+                f'rig_profile {cfg.scenario.rig_profile}, installation seed '
+                f'{cfg.scenario.drawn_seed}: the drawn installation (IMU lever arm '
+                f'{np.round(mount.position_m, 4).tolist()} m, '
                 f'boresight {np.round(np.degrees(mount.rpy_rad), 3).tolist()} deg, clock '
                 f'offset {cfg.scenario.imu_clock_offset_s() * 1e3:+.3f} ms and drift '
                 f'{cfg.scenario.imu_clock_drift_ppm():+.2f} ppm in the stamps)')

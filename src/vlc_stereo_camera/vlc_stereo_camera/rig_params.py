@@ -19,7 +19,9 @@ there). They act at publication time only: the physics is the same with and with
 real installation: ``ideal`` (the default) is the rig as it always was; ``realistic``
 and ``harsh`` draw, from the profile and ``seed``, the vehicle's true camera, mount,
 IMU boresight and clock offset, the line's true lamps, and the belief the receivers get
-(calibration, mount file as measured, surveyed lamp map). Every rig node draws the same
+(calibration, mount file as measured, surveyed lamp map); ``installation_seed`` (when
+not 0) draws the installation instead, so one train and line can be run again with new
+sensor noise, platform motion and IMU biases (``seed``). Every rig node draws the same
 installation: :meth:`ScenarioConfig.vehicle` is then the TRUE mount, the trajectory's
 platform motion is the profile's car body, and the IMU stamps carry the drawn clock
 offset. ``installation_dir`` (camera node) receives ``belief/`` and ``truth/``.
@@ -69,6 +71,12 @@ SCENARIO_PARAMETERS = (
                                    'nominal rig, receivers share its truth), realistic, '
                                    'harsh (drawn installation: truth vs belief, per seed).',
                                    ptype=ParameterType.PARAMETER_STRING)),
+    ('installation_seed', 0, _desc('Seed of the drawn installation (vehicle, optics, '
+                                   'calibration, IMU mount and clock, the line\'s lamps) of '
+                                   'a drawn rig_profile; 0 = seed. The same installation '
+                                   'with another seed is the same train on the same line '
+                                   'on another run (multi-pass evaluation).',
+                                   0, 2 ** 31 - 1, integer=True)),
     ('rig_profiles_path', '', _desc("Rig profiles file; '' = share/vlc_stereo_camera/"
                                     'config/rig_profiles.yaml.',
                                     ptype=ParameterType.PARAMETER_STRING)),
@@ -119,12 +127,18 @@ class ScenarioConfig:
     vehicle_path: str = ''
     rig_profile: str = 'ideal'
     rig_profiles_path: str = ''
+    installation_seed: int = 0
     installation_dir: str = ''
     imu_dropouts_s: tuple = ()
     camera_dropouts_s: tuple = ()
     imu_burst_s: float = 0.0
     imu_stamp_offset_s: float = 0.0
     sensor_clock_jumps_s: tuple = ()
+
+    @property
+    def drawn_seed(self):
+        """The seed the installation is drawn from: ``installation_seed``, else ``seed``."""
+        return int(self.installation_seed) or int(self.seed)
 
     def profile(self):
         """The RigProfile named by ``rig_profile`` (ProfileError, a ValueError, naming the
@@ -142,15 +156,15 @@ class ScenarioConfig:
         """
         profile = self.profile()
         nominal = self.nominal_vehicle()
-        return nominal if profile.ideal else draw_vehicle(profile, self.seed, nominal)[0]
+        return nominal if profile.ideal else draw_vehicle(profile, self.drawn_seed, nominal)[0]
 
     def imu_clock_offset_s(self):
         """The drawn IMU-minus-camera clock offset of the installation, s (0 for ideal)."""
-        return draw_imu_clock(self.profile(), self.seed)[0]
+        return draw_imu_clock(self.profile(), self.drawn_seed)[0]
 
     def imu_clock_drift_ppm(self):
         """The drawn IMU clock drift against the camera's, ppm (0 for ideal)."""
-        return draw_imu_clock(self.profile(), self.seed)[1]
+        return draw_imu_clock(self.profile(), self.drawn_seed)[1]
 
     def track_alignment(self):
         """The Alignment named by ``alignment`` (raises ValueError if unknown)."""
@@ -178,7 +192,7 @@ class ScenarioConfig:
 
     def sensor_faults(self):
         """The SensorFaults these parameters describe (raises ValueError if invalid)."""
-        offset_s, drift_ppm = draw_imu_clock(self.profile(), self.seed)
+        offset_s, drift_ppm = draw_imu_clock(self.profile(), self.drawn_seed)
         faults = SensorFaults.from_parameters(
             imu_dropouts_s=self.imu_dropouts_s, camera_dropouts_s=self.camera_dropouts_s,
             imu_burst_s=self.imu_burst_s,

@@ -281,7 +281,7 @@ class StereoCameraNode(Node):
             self.installation = None
         else:
             self.installation = inst = draw_installation(
-                profile, self.scenario.seed, self.scenario.nominal_vehicle(), lamp_map,
+                profile, self.scenario.drawn_seed, self.scenario.nominal_vehicle(), lamp_map,
                 cfg.nominal_camera())
             renderer_config = dataclasses.replace(
                 cfg.renderer_config(self.scenario.epoch_s, inst.vehicle_truth),

@@ -1,0 +1,95 @@
+"""The multi-pass protocol (evaluation/passes.py): one train, one line, run again and
+again; and ``installation_seed``, which makes that possible.
+"""
+import pytest
+import yaml
+
+from vlc_evaluation import passes
+from vlc_evaluation.runner import write_installation
+from vlc_evaluation.scenarios import Scenario
+
+
+def test_installation_seed_draws_the_installation_and_seed_the_run(tmp_path):
+    a = Scenario(name='a', seed=11, installation_seed=3, rig_profile='realistic')
+    b = Scenario(name='b', seed=12, installation_seed=3, rig_profile='realistic')
+    c = Scenario(name='c', seed=3, rig_profile='realistic')
+    for s in (a, b, c):
+        write_installation(s, tmp_path)
+    truth = {s.name: yaml.safe_load((tmp_path / f'{s.name}.installation' / 'truth'
+                                     / 'truth.yaml').read_text()) for s in (a, b, c)}
+    assert truth['a'] == truth['b'] == truth['c'] and truth['a']['seed'] == 3
+    assert Scenario(name='d', seed=4).drawn_seed == 4
+
+
+def test_rig_nodes_draw_the_installation_from_installation_seed():
+    from vlc_stereo_camera.rig_params import ScenarioConfig
+    base = dict(epoch_s=0.0, motion_profile='constant', start_chainage_m=0.0,
+                speed_kmh=40.0, accel_mps2=1.0, brake_mps2=1.0, dwell_s=0.0, cruise_s=1.0,
+                vibration_enabled=True, vibration_scale=1.0, rig_profile='realistic')
+    one = ScenarioConfig(seed=5, installation_seed=2, **base)
+    two = ScenarioConfig(seed=6, installation_seed=2, **base)
+    own = ScenarioConfig(seed=2, **base)
+    assert one.drawn_seed == two.drawn_seed == own.drawn_seed == 2
+    assert one.imu_clock_offset_s() == two.imu_clock_offset_s() == own.imu_clock_offset_s()
+    assert one.vehicle().camera.pitch_deg == own.vehicle().camera.pitch_deg
+    # the run's own randomness still follows seed: the car body differs
+    t = [0.5, 1.0]
+    assert not (one.trajectory().sample(t).position_m
+                == two.trajectory().sample(t).position_m).all()
+
+
+def test_learning_passes_and_scored_runs_keep_their_train_and_seeds(tmp_path):
+    learn = [passes.learning_pass(2, k, tmp_path / 'kept', localizer_params={'x': 1})
+             for k in (1, 2)]
+    assert [s.installation_seed for s in learn] == [2, 2]
+    assert len({s.seed for s in learn}) == 2 and learn[0].name == 'pass01_060kmh'
+    assert learn[0].node_params['train_localizer_node'] == {
+        'x': 1, 'self_calibration_path': str(tmp_path / 'kept' / 'self_calibration.yaml')}
+    first = passes.scored_runs(2, tmp_path / 'after00')
+    later = passes.scored_runs(2, tmp_path / 'after03')
+    seeds = [[s.seed for s in group] for group in first]
+    # the same noise at every checkpoint, never a learning pass's
+    assert seeds == [[s.seed for s in group] for group in later]
+    assert not set(sum(seeds, [])) & {s.seed for s in learn}
+    assert [s.static_point_m for s in first[0]] == list(passes.STATIC_POINTS_M)
+    assert [s.speed_kmh for s in first[1]] == [float(v) for v in passes.SPEEDS_KMH]
+    own = first[0][0].node_params['train_localizer_node']['self_calibration_path']
+    assert own == str(tmp_path / 'after00' / first[0][0].name / 'self_calibration.yaml')
+    assert {s.rig_profile for s in first[0] + first[1]} == {'realistic'}
+
+
+def test_each_scored_run_gets_its_own_copy_of_the_kept_files(tmp_path):
+    kept = tmp_path / 'kept'
+    passes._copy_files(kept, tmp_path / 'files', ['a'])          # nothing kept yet
+    assert list((tmp_path / 'files' / 'a').iterdir()) == []
+    kept.mkdir()
+    (kept / 'self_calibration.yaml').write_text('disparity_offset_px: 0.3\n')
+    passes._copy_files(kept, tmp_path / 'files', ['a', 'b'])
+    for name in 'ab':
+        assert (tmp_path / 'files' / name / 'self_calibration.yaml').read_text() == \
+            'disparity_offset_px: 0.3\n'
+
+
+def test_parse_params():
+    assert passes.parse_params(['use_self_calibration:=true', 'a:=0.5']) == {
+        'use_self_calibration': True, 'a': 0.5}
+    with pytest.raises(ValueError, match='NAME:=VALUE'):
+        passes.parse_params(['use_self_calibration=true'])
+
+
+def test_passes_table_has_a_row_per_checkpoint(tmp_path):
+    def dynamic(speed, err):
+        return {'speed_kmh': speed, 'seed': 1, 'points': [{'error_m': err}],
+                'every_pose': {'max_m': err, 'count': 10}, 'covariance_3sigma_fraction': 1.0}
+    results = {1: {0: {'static': [{'error_m': 0.08, 'seed': 1}], 'dynamic': [dynamic(40.0, 0.05)],
+                       'kept': {}},
+                   3: {'static': [{'error_m': 0.02, 'seed': 1}], 'dynamic': [dynamic(40.0, 0.01)],
+                       'kept': {'disparity_offset_px': 0.25, 'disparity_offset_sigma_px': 0.1}}}}
+    table, figures = passes.passes_table(results)
+    lines = table.splitlines()
+    assert len(lines) == 4 and lines[2].startswith('| first pass | 8.00 / 8.00 | 5.00 / 5.00')
+    assert lines[3].startswith('| 3 | 2.00 / 2.00 | 1.00 / 1.00 | 100.0 % | 0 | +0.250 ± 0.100')
+    doc = tmp_path / 'doc.md'
+    doc.write_text('a\n<!-- passes:begin -->\nold\n<!-- passes:end -->\nb\n')
+    passes.update_docs(doc, table, 'run_evaluation --passes 3')
+    assert 'old' not in doc.read_text() and '| first pass |' in doc.read_text()

@@ -1,0 +1,222 @@
+"""Multi-pass evaluation: one train on one line, run again and again (issue 17).
+
+A train in service passes the same lamps every day; what its localizer learns on one
+run (the files it keeps: the self-calibration, ``self_calibration_path``) is read at
+the next start. This protocol measures what that is worth on a drawn rig profile:
+
+* a *train* is one drawn installation (``installation_seed``: vehicle, optics,
+  calibration, mount, the line's lamps and survey);
+* its *learning passes* are dynamic runs over the line at ``learn_speed_kmh``, one after
+  the other, each a fresh graph with new sensor noise, platform motion and IMU biases
+  (``seed``), reading and writing the train's kept files;
+* at each *checkpoint* n (0 = the first pass: nothing kept yet; 1, 3, 10 …) the scored
+  runs — static trials and dynamic runs at each speed — start from a copy of the files
+  as n learning passes left them. Their seeds are the same at every checkpoint, so two
+  checkpoints differ only in what was learnt.
+
+Rounds: round k runs learning pass k + 1 of every train and the scored runs of
+checkpoint k, on the evaluation's lanes. Bags, logs and results in
+``<out>/passes/train<i>/{pass<k>,after<n>/static,after<n>/dynamic}/``; the kept files in
+``<out>/passes/train<i>/kept/`` and their copies in ``after<n>/files/``.
+"""
+import json
+import pathlib
+import shutil
+
+import yaml
+
+from vlc_evaluation import ablations, budget, metrics, scenarios
+
+CHECKPOINTS = (0, 1, 3, 10)
+STATIC_POINTS_M = (9.0, 5.0, 2.0)
+SPEEDS_KMH = (40, 100)
+LEARN_SPEED_KMH = 60
+LEARN_CELLS = 6
+GROUP_PREFIX = 'passes/'
+SELF_CALIBRATION_FILE = 'self_calibration.yaml'
+BEGIN_MARK, END_MARK = '<!-- passes:begin -->', '<!-- passes:end -->'
+LOCALIZER = 'train_localizer_node'
+
+
+def run_seed(train, role, index):
+    """Seed of a run of ``train``: ``role`` 0 = learning pass ``index``, 1 = the
+    ``index``-th scored run (the same at every checkpoint).
+    """
+    return 100000 * int(train) + 1000 * int(role) + int(index)
+
+
+def _localizer_params(base, files_dir):
+    return dict(base, self_calibration_path=str(pathlib.Path(files_dir) / SELF_CALIBRATION_FILE))
+
+
+def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEED_KMH,
+                  cells=LEARN_CELLS, localizer_params=None, realtime_factor=1.0):
+    """Learning pass ``k`` (1, 2, …) of ``train``: a dynamic run that reads and writes
+    the kept files in ``files_dir``.
+    """
+    scenario = scenarios.dynamic_scenarios(speeds_kmh=(speed_kmh,), runs=1, cells=cells,
+                                           first_seed=run_seed(train, 0, k))[0]
+    scenario.name = f'pass{k:02d}_{speed_kmh:03d}kmh'
+    scenario.rig_profile, scenario.installation_seed = profile, int(train)
+    scenario.realtime_factor = realtime_factor
+    scenario.node_params = {LOCALIZER: _localizer_params(localizer_params or {}, files_dir)}
+    return scenario
+
+
+def scored_runs(train, files_dir, profile='realistic', points_m=STATIC_POINTS_M,
+                speeds_kmh=SPEEDS_KMH, cells=4, observe_s=scenarios.STATIC_OBSERVE_S,
+                localizer_params=None, realtime_factor=1.0):
+    """(static, dynamic) Scenarios of one checkpoint of ``train``; each reads its own
+    copy of the files in ``files_dir`` (what it writes back is not kept).
+    """
+    static = [scenarios.static_scenarios(points_m=(d,), trials=1, observe_s=observe_s,
+                                         first_seed=run_seed(train, 1, i))[0]
+              for i, d in enumerate(points_m)]
+    dynamic = [scenarios.dynamic_scenarios(speeds_kmh=(v,), runs=1, cells=cells,
+                                           first_seed=run_seed(train, 1, 100 + i))[0]
+               for i, v in enumerate(speeds_kmh)]
+    for scenario in static + dynamic:
+        scenario.rig_profile, scenario.installation_seed = profile, int(train)
+        scenario.realtime_factor = realtime_factor
+        own = pathlib.Path(files_dir) / scenario.name
+        scenario.node_params = {LOCALIZER: _localizer_params(localizer_params or {}, own)}
+    return static, dynamic
+
+
+def _copy_files(src, dst, names):
+    """Give each scored run ``dst/<name>/`` a copy of the kept files of ``src`` (none
+    yet: an empty folder, a first run).
+    """
+    kept = sorted(pathlib.Path(src).glob('*.yaml')) if pathlib.Path(src).is_dir() else []
+    for name in names:
+        (dst / name).mkdir(parents=True, exist_ok=True)
+        for path in kept:
+            shutil.copy2(path, dst / name / path.name)
+
+
+def kept_state(files_dir):
+    """What a train keeps (the self-calibration file's values), or {}."""
+    path = pathlib.Path(files_dir) / SELF_CALIBRATION_FILE
+    if not path.exists():
+        return {}
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8')) or {}
+    except yaml.YAMLError:
+        return {}
+    return {k: data.get(k) for k in ('disparity_offset_px', 'disparity_offset_sigma_px',
+                                     'stereo_scale_error', 'stereo_scale_sigma', 'runs')}
+
+
+def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOINTS,
+               profile='realistic', points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH,
+               learn_speed_kmh=LEARN_SPEED_KMH, localizer_params=None, lanes=2,
+               spawn='fork', progress=None, retries=1, realtime_factor=1.0):
+    """Run the protocol; returns ``{train: {checkpoint: {'static': [...], 'dynamic':
+    [...], 'kept': {...}}}}`` (also written to ``<out>/passes/results.json``).
+    """
+    out_dir = pathlib.Path(out_dir)
+    root = out_dir / GROUP_PREFIX.rstrip('/')
+    checkpoints = sorted({int(n) for n in checkpoints if 0 <= int(n) <= passes})
+    results = {int(t): {} for t in trains}
+    for t in trains:
+        shutil.rmtree(root / f'train{t}' / 'kept', ignore_errors=True)
+        (root / f'train{t}' / 'kept').mkdir(parents=True, exist_ok=True)
+    for k in range(0, max(passes, max(checkpoints, default=0)) + 1):
+        groups = {}
+        for t in trains:
+            base = root / f'train{t}'
+            if k < passes:
+                groups[f'{GROUP_PREFIX}train{t}/pass{k + 1:02d}'] = [learning_pass(
+                    t, k + 1, base / 'kept', profile, learn_speed_kmh,
+                    localizer_params=localizer_params, realtime_factor=realtime_factor)]
+            if k in checkpoints:
+                files = base / f'after{k:02d}' / 'files'
+                shutil.rmtree(files, ignore_errors=True)
+                static, dynamic = scored_runs(t, files, profile, points_m, speeds_kmh,
+                                              localizer_params=localizer_params,
+                                              realtime_factor=realtime_factor)
+                _copy_files(base / 'kept', files, [s.name for s in static + dynamic])
+                results[int(t)][k] = {'kept': kept_state(base / 'kept')}
+                groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/static'] = static
+                groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/dynamic'] = dynamic
+        if not groups:
+            continue
+        done = scenarios.run_protocols(groups, out_dir, lamp_map, lanes=lanes, spawn=spawn,
+                                       progress=progress, retries=retries)
+        for t in trains:
+            for kind in ('static', 'dynamic'):
+                group = f'{GROUP_PREFIX}train{t}/after{k:02d}/{kind}'
+                if group in done:
+                    results[int(t)][k][kind] = done[group]
+    with open(root / 'results.json', 'w', encoding='utf-8') as stream:
+        json.dump({str(t): {str(n): v for n, v in r.items()} for t, r in results.items()},
+                  stream)
+    return results
+
+
+def passes_table(results):
+    """(Markdown table, figures): per checkpoint, over the trains, the static and
+    per-speed max / mean, the dynamic poses within 3σ, misses, and what was kept.
+    """
+    checkpoints = sorted({n for r in results.values() for n in r})
+    figures = {}
+    for n in checkpoints:
+        static = [x for r in results.values() for x in r.get(n, {}).get('static', [])]
+        dynamic = [x for r in results.values() for x in r.get(n, {}).get('dynamic', [])]
+        kept = {t: r[n].get('kept', {}) for t, r in results.items() if n in r}
+        figures[n] = dict(ablations.protocol_summary(static, dynamic),
+                          within_3sigma=budget.within_3sigma(dynamic), kept=kept)
+    speeds = sorted({v for f in figures.values() for v in f['dynamic']})
+    cm = metrics.cm_text
+    head = ('| passes learnt | static max / mean (cm) | '
+            + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
+            + ' | dynamic poses within 3σ | misses | kept disparity offset (px), per train |')
+    rows = [head, '|' + '---|' * (5 + len(speeds))]
+    for n, fig in figures.items():
+        s = fig['static']
+        cells = [f'{cm(fig["dynamic"][v]["max_m"])} / {cm(fig["dynamic"][v]["mean_m"])}'
+                 if v in fig['dynamic'] else '–' for v in speeds]
+        within = fig['within_3sigma']
+        misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
+        kept = ', '.join(
+            (f'{k["disparity_offset_px"]:+.3f} ± {k["disparity_offset_sigma_px"]:.3f}'
+             if k.get('disparity_offset_px') is not None else '–')
+            for _, k in sorted(fig['kept'].items()))
+        rows.append(f'| {"first pass" if n == 0 else n} | {cm(s["max_m"])} / '
+                    f'{cm(s["mean_m"])} | ' + ' | '.join(cells) + ' | '
+                    + ('–' if within is None else f'{100 * within:.1f} %')
+                    + f' | {misses} | {kept} |')
+    return '\n'.join(rows), figures
+
+
+def parse_params(items):
+    """``['name:=value', …]`` as a dict (values as YAML); ValueError naming a bad item."""
+    params = {}
+    for item in items:
+        name, sep, value = item.partition(':=')
+        if not sep or not name.strip():
+            raise ValueError(f'{item!r} is not NAME:=VALUE')
+        try:
+            params[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ValueError(f'{item!r}: {exc}') from None
+    return params
+
+
+def describe(results, passes, profile, learn_speed_kmh=LEARN_SPEED_KMH,
+             points_m=STATIC_POINTS_M, params=None):
+    """One paragraph saying what the table was run on."""
+    trains = sorted(results)
+    given = ', '.join(f'`{k}: {v}`' for k, v in (params or {}).items())
+    return (f'Rig profile `{profile}`, trains (drawn installations) '
+            f'{", ".join(map(str, trains))}; {passes} learning passes at {learn_speed_kmh} '
+            f'km/h each; at each checkpoint static points '
+            f'{", ".join(f"{p:g}" for p in points_m)} m and one dynamic run per speed, '
+            'with the same seeds at every checkpoint. Localizer parameters: '
+            + (given or 'the defaults') + ' (and `self_calibration_path`).')
+
+
+def update_docs(path, text, command):
+    from vlc_evaluation.report import replace_marked_block
+    replace_marked_block(path, f'{BEGIN_MARK}\nGenerated by `{command}`.\n\n{text}\n{END_MARK}',
+                         begin=BEGIN_MARK, end=END_MARK)
