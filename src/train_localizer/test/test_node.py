@@ -343,3 +343,68 @@ def test_a_saved_self_calibration_is_applied_from_the_start_and_written_back(har
     h.node.save_self_calibration()
     saved = yaml.safe_load(path.read_text())
     assert saved['runs'] == 3 and saved['disparity_offset_px'] == 0.3
+
+
+def _shipped_map():
+    from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
+    return LampMap.load(default_lamp_map_path())
+
+
+def _kept_refinement(lamp_map, gross_uid, passes=3):
+    """A refinement of the shipped map whose passes put ``gross_uid`` 5 cm further."""
+    from train_localizer.core.lamp_refinement import Refinement, TripletMeasurement
+    uids = [lamp.uid for lamp in lamp_map.lamps[:12]]
+    ref = Refinement()
+    for _ in range(passes):
+        ms = []
+        for a, b, c in zip(uids, uids[1:], uids[2:]):
+            e = [0.05 if u == gross_uid else 0.0 for u in (a, b, c)]
+            ms.append(TripletMeasurement((a, b, c), 0.5, e[1] - 0.5 * e[0] - 0.5 * e[2], 0.004))
+        ref = ref.merged(ms)
+    return ref
+
+
+def test_a_kept_lamp_refinement_is_applied_and_a_bad_one_refused(harness, tmp_path):
+    from train_localizer.core.lamp_refinement_file import save_refinement
+    survey = _shipped_map()
+    gross = survey.lamps[5].uid
+    path = tmp_path / 'refinement.yaml'
+    save_refinement(path, _kept_refinement(survey, gross), survey)
+    h = harness({'lamp_refinement_path': str(path)})
+    moved = h.node.lamp_map.by_uid(gross).position_m[0] - survey.by_uid(gross).position_m[0]
+    assert moved == pytest.approx(-0.05, abs=0.005)
+    assert h.node.lamp_map.by_uid(survey.lamps[20].uid).position_m[0] == \
+        survey.lamps[20].position_m[0]
+    h.node._publish_diagnostics()
+    assert h.spin_until(lambda: h.got['diag'])
+    values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
+    assert values['lamp_refinement'].startswith('from file (3 pass(es))')
+    assert values['lamps_off_survey'] == f'{gross:#06x}' and values['lamps_moved'] == 'none'
+    # the same file against another survey of the line: refused, the survey used, kept
+    other = tmp_path / 'other.yaml'
+    other.write_text(path.read_text().replace('survey_digest: ', 'survey_digest: 0'))
+    text = other.read_text()
+    h2 = harness({'lamp_refinement_path': str(other)})
+    assert h2.node.lamp_map.by_uid(gross).position_m[0] == survey.by_uid(gross).position_m[0]
+    assert h2.node.localizer_config.refinement_kept.state.startswith('refused')
+    assert 'another survey' in h2.node.localizer_config.refinement_kept.state
+    h2.node.save_kept()
+    assert other.read_text() == text
+
+
+def test_a_run_adds_its_lamp_triplets_to_the_file_at_stop(harness, tmp_path):
+    path = tmp_path / 'refinement.yaml'
+    h = harness({'lamp_refinement_path': str(path)})
+    traj, events = constant_speed_run(60.0, 3.6, seed=22, start_chainage_m=5.0)
+    for _, kind, payload in events:
+        if kind == 'imu':
+            h.send_imu(imu_msg(payload))
+        else:
+            h.send_frame(payload[0], payload[1])
+    assert not path.exists()
+    h.node.save_kept()
+    saved = yaml.safe_load(path.read_text())
+    assert saved['passes'] == 1 and len(saved['triplets']) >= 2
+    # an exact survey: every middle lamp where its neighbours put it, within 3σ
+    for row in saved['triplets']:
+        assert abs(row[4]) < max(3.0 * row[5], 0.01)

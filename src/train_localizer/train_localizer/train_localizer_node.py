@@ -57,6 +57,8 @@ from train_localizer.core.fix import FixConfig
 from train_localizer.core.imu_pacing import ImuPacer
 from train_localizer.core.integrity import IntegrityConfig, Level
 from train_localizer.core.join import FrameJoiner
+from train_localizer.core.lamp_refinement import RefinementConfig
+from train_localizer.core.lamp_refinement_file import read_kept, save_refinement
 from train_localizer.core.localizer import Localizer, LocalizerConfig
 from train_localizer.core.reacquisition import (
     APPLIED,
@@ -142,6 +144,13 @@ PARAMETERS = (
                                         "every self_calibration_save_s; '' = none.")),
     ('self_calibration_save_s', 10.0, _desc('Steady-clock period of writing the learnt '
                                             'calibration, s.', 1.0, 3600.0)),
+    ('lamp_refinement_path', '', _desc("Lamp-map refinement file of the line (surveying by "
+                                       "train, core/lamp_refinement.py): read at start and "
+                                       "applied to the surveyed map, this run's lamp "
+                                       "triplets added and written at stop and every "
+                                       "lamp_refinement_save_s; '' = off.")),
+    ('lamp_refinement_save_s', 10.0, _desc('Steady-clock period of writing the lamp-map '
+                                           'refinement, s.', 1.0, 3600.0)),
     ('attitude_weight_inflation', 4.0, _desc('Factor on the attitude covariance in the fix '
                                              'weights (correlated error).', 1.0, 1000.0)),
     ('attitude_sigma_floor_deg', [0.05, 0.05, 0.1],
@@ -265,6 +274,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                                                 latched) for side in ('left', 'right')]
         self.lamp_map, self.localizer_config = self.setup(p)
         self._self_cal_state, saved = self._load_self_calibration(p)
+        self._report_refinement()
         self._self_cal_runs = 1 + (saved.runs if saved is not None else 0)
         fix = self.localizer_config.fix
         self._calibration_text = (
@@ -310,6 +320,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         if p['self_calibration_path'] and self.localizer.survey is not None:
             self.create_timer(p['self_calibration_save_s'], self.save_self_calibration,
                               clock=self._steady)
+        if self.localizer.pass_recorder is not None:
+            self.create_timer(p['lamp_refinement_save_s'], self.save_lamp_refinement,
+                              clock=self._steady)
         self.get_logger().info(
             f'lamp map {path} ({len(self.lamp_map)} lamps), track '
             f'{self.localizer_config.fix.track.name}; range constraint '
@@ -327,6 +340,17 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                                                       p['alignment'] or 'straight'))
         config.fix.track = Track.for_lamp_map(lamp_map, p['alignment'],
                                               config.fix.track_offset_yz_m)
+        if p.get('lamp_refinement_path'):
+            track = config.fix.track
+
+            def tangent_of(lamp):
+                return track.frame(lamp.track_chainage_m)[1]
+
+            config.refinement = RefinementConfig()
+            lamp_map, config.refinement_kept = read_kept(
+                p['lamp_refinement_path'], lamp_map, tangent_of,
+                config.fix.lamp_position_sigma_m, config.refinement)
+            config.refinement_applied = dict(config.refinement_kept.applied)
         return lamp_map, config
 
     def _load_self_calibration(self, p):
@@ -381,6 +405,55 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             save_calibration(path, saved)
         except OSError as exc:
             self._warn('self_calibration_save', f'self-calibration not written to {path}: {exc}')
+
+    def _report_refinement(self):
+        kept = self.localizer_config.refinement_kept
+        if kept is None:
+            return
+        if kept.refused:
+            self.get_logger().error(f'lamp refinement file refused, running on the survey: '
+                                    f'{kept.state[len("refused: "):]}')
+            return
+        self.get_logger().info(f'lamp refinement {kept.path}: {kept.state}')
+        for uid, reason in sorted(kept.off_survey.items()):
+            self.get_logger().warn(f'lamp {uid:#06x} is {reason} (lamp refinement): '
+                                   'placed where the passes put it; re-survey it')
+        for flag in kept.base.flags if kept.base is not None else ():
+            self.get_logger().warn(f'lamp {flag.uid:#06x} {flag.reason} (lamp refinement)')
+        self._flags_reported = {f.uid for f in kept.base.flags} if kept.base else set()
+
+    def _merged_refinement(self, finish=False):
+        kept, recorder = self.localizer_config.refinement_kept, self.localizer.pass_recorder
+        if kept is None or kept.refused or recorder is None:
+            return None
+        measurements = recorder.finish() if finish else recorder.measurements
+        return kept.base.merged(measurements)
+
+    def save_lamp_refinement(self, finish=False):
+        """Write the kept refinement plus this run's triplets to
+        ``lamp_refinement_path`` (never over a refused file); errors are logged, never
+        raised. Newly moved lamps are logged.
+        """
+        merged = self._merged_refinement(finish)
+        if merged is None or not self.localizer.pass_recorder.measurements:
+            return
+        kept = self.localizer_config.refinement_kept
+        for flag in merged.flags:
+            if flag.uid not in getattr(self, '_flags_reported', set()):
+                self._flags_reported = getattr(self, '_flags_reported', set()) | {flag.uid}
+                self.get_logger().warn(f'lamp {flag.uid:#06x} {flag.reason} (lamp refinement):'
+                                       ' its earlier triplets are kept apart in the file')
+        try:
+            save_refinement(kept.path, merged, kept.survey_map,
+                            params.load_mount(self.params).vehicle_id)
+        except OSError as exc:
+            self._warn('lamp_refinement_save', f'lamp refinement not written to {kept.path}: '
+                       f'{exc}')
+
+    def save_kept(self):
+        """At stop: what the train keeps (self-calibration, lamp refinement)."""
+        self.save_self_calibration()
+        self.save_lamp_refinement(finish=True)
 
     @staticmethod
     def reacquisition_config(p):
@@ -673,6 +746,19 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                 'self_survey_lamps_inconsistent': len(survey.flagged)})
         else:
             values['self_calibration'] = 'off'
+        kept = self.localizer_config.refinement_kept
+        if kept is None:
+            values['lamp_refinement'] = 'off'
+        else:
+            values['lamp_refinement'] = kept.state
+            recorder = self.localizer.pass_recorder
+            if recorder is not None and not kept.refused:
+                merged = self._merged_refinement()
+                values['lamp_refinement_triplets_this_run'] = len(recorder.measurements)
+                values['lamps_off_survey'] = ' '.join(f'{u:#06x}' for u in sorted(
+                    kept.off_survey)) or 'none'
+                values['lamps_moved'] = ' '.join(f'{u:#06x}' for u in sorted(
+                    merged.moved)) or 'none'
         aid = self.curvature_aid.counters
         values.update({'curvature_aids_received': aid.received,
                        'curvature_aids_applied': aid.applied,
@@ -708,7 +794,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
 
 def main(args=None):
     return run_node(TrainLocalizerNode, 'train_localizer', args,
-                    stop=TrainLocalizerNode.save_self_calibration)
+                    stop=TrainLocalizerNode.save_kept)
 
 
 if __name__ == '__main__':

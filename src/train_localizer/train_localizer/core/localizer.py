@@ -50,6 +50,7 @@ from train_localizer.core.integrity import (
     select_association,
 )
 from train_localizer.core.kalman import H_CHAINAGE, H_SPEED, KalmanConfig, initial_state, innovation
+from train_localizer.core.lamp_refinement import PassRecorder
 from train_localizer.core.publication import PoseGate
 from train_localizer.core.reports import (
     AttitudeAid,
@@ -193,6 +194,12 @@ class LocalizerConfig:
     #: lamps' priors of a saved refinement ({uid: (mean m, 1σ m)})
     self_survey: object = None
     lamp_priors: dict = field(default_factory=dict)
+    #: :class:`~train_localizer.core.lamp_refinement.RefinementConfig` (None: no pair
+    #: measurements) and the corrections applied to the map at start ({uid: m})
+    refinement: object = None
+    refinement_applied: dict = field(default_factory=dict)
+    #: :class:`~train_localizer.core.lamp_refinement_file.KeptRefinement` the node read
+    refinement_kept: object = None
 
     def __post_init__(self):
         for name in ('publish_rate_hz', 'history_s', 'imu_timeout_s', 'imu_max_gap_s',
@@ -242,6 +249,8 @@ class Localizer:
                        if cfg.self_survey is not None else None)
         self._survey_started = False
         self._survey_seq = 0
+        self.pass_recorder = (PassRecorder(cfg.refinement, cfg.refinement_applied)
+                              if cfg.refinement is not None else None)
         self._reset_state()
 
     # ----------------------------------------------------------------- state
@@ -407,6 +416,12 @@ class Localizer:
         a_in = NO_INPUT if (gap or first) else (0.5 * (self._last_accel + accel),
                                                 self._tilt_leak_q(sample))
         self._last_accel = accel
+        if self.pass_recorder is not None:
+            newest = self._steps.newest_state
+            bias, bias_var = ((float(newest.x[2]), float(newest.P[2, 2]))
+                              if newest is not None else (0.0, float('inf')))
+            self.pass_recorder.add_accel(t / NS_PER_S, None if gap else accel - bias,
+                                         bias_var)
         previous_ns, previous_received = self._newest_imu_ns, self._imu_received_ns
         self._newest_imu_ns = t
         self._imu_received_ns = received_ns if received_ns else None
@@ -753,6 +768,8 @@ class Localizer:
                 return
         self._apply_fix(t_m, fix)
         mon.on_accepted(t_m, confirmed)
+        if confirmed and self.pass_recorder is not None:
+            self.pass_recorder.add(t_m / NS_PER_S, lamp.uid, fix.chainage_m, fix.var_m2)
         report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
                                       fix.var_m2, d2))
         self._attitude_aid(prep, lamp, fix, report)
