@@ -44,7 +44,8 @@ def test_learning_passes_and_scored_runs_keep_their_train_and_seeds(tmp_path):
     assert [s.installation_seed for s in learn] == [2, 2]
     assert len({s.seed for s in learn}) == 2 and learn[0].name == 'pass01_060kmh'
     assert learn[0].node_params['train_localizer_node'] == {
-        'x': 1, 'self_calibration_path': str(tmp_path / 'kept' / 'self_calibration.yaml')}
+        'x': 1, 'self_calibration_path': str(tmp_path / 'kept' / 'self_calibration.yaml'),
+        'lamp_refinement_path': str(tmp_path / 'kept' / 'lamp_refinement.yaml')}
     first = passes.scored_runs(2, tmp_path / 'after00')
     later = passes.scored_runs(2, tmp_path / 'after03')
     seeds = [[s.seed for s in group] for group in first]
@@ -70,6 +71,17 @@ def test_each_scored_run_gets_its_own_copy_of_the_kept_files(tmp_path):
             'disparity_offset_px: 0.3\n'
 
 
+def test_kept_state_reads_both_files(tmp_path):
+    assert passes.kept_state(tmp_path) == {}
+    (tmp_path / 'lamp_refinement.yaml').write_text(
+        'passes: 3\ntriplets: [[1, 2, 3, 0.5, 0.001, 0.004, 3], [2, 3, 4, 0.5, 0.0, 0.004, 3]]\n'
+        'flags: [{uid: 3}]\n')
+    assert passes.kept_state(tmp_path) == {'refinement_passes': 3, 'refinement_triplets': 2,
+                                           'refinement_flags': 1}
+    (tmp_path / 'self_calibration.yaml').write_text(': not yaml [')
+    assert passes.kept_state(tmp_path)['refinement_triplets'] == 2
+
+
 def test_parse_params():
     assert passes.parse_params(['use_self_calibration:=true', 'a:=0.5']) == {
         'use_self_calibration': True, 'a': 0.5}
@@ -84,11 +96,14 @@ def test_passes_table_has_a_row_per_checkpoint(tmp_path):
     results = {1: {0: {'static': [{'error_m': 0.08, 'seed': 1}], 'dynamic': [dynamic(40.0, 0.05)],
                        'kept': {}},
                    3: {'static': [{'error_m': 0.02, 'seed': 1}], 'dynamic': [dynamic(40.0, 0.01)],
-                       'kept': {'disparity_offset_px': 0.25, 'disparity_offset_sigma_px': 0.1}}}}
+                       'kept': {'disparity_offset_px': 0.25, 'disparity_offset_sigma_px': 0.1,
+                                'refinement_passes': 3, 'refinement_triplets': 40,
+                                'refinement_flags': 1}}}}
     table, figures = passes.passes_table(results)
     lines = table.splitlines()
     assert len(lines) == 4 and lines[2].startswith('| first pass | 8.00 / 8.00 | 5.00 / 5.00')
-    assert lines[3].startswith('| 3 | 2.00 / 2.00 | 1.00 / 1.00 | 100.0 % | 0 | +0.250 ± 0.100')
+    assert lines[3].startswith('| 3 | 2.00 / 2.00 | 1.00 / 1.00 | 100.0 % | 0 | '
+                               '+0.250 ± 0.100; 40, 1 |')
     doc = tmp_path / 'doc.md'
     doc.write_text('a\n<!-- passes:begin -->\nold\n<!-- passes:end -->\nb\n')
     passes.update_docs(doc, table, 'run_evaluation --passes 3')

@@ -1,8 +1,9 @@
 """Multi-pass evaluation: one train on one line, run again and again (issue 17).
 
 A train in service passes the same lamps every day; what its localizer learns on one
-run (the files it keeps: the self-calibration, ``self_calibration_path``) is read at
-the next start. This protocol measures what that is worth on a drawn rig profile:
+run (the files it keeps: the self-calibration, ``self_calibration_path``, and the
+lamp-map refinement, ``lamp_refinement_path``) is read at the next start. This protocol
+measures what that is worth on a drawn rig profile:
 
 * a *train* is one drawn installation (``installation_seed``: vehicle, optics,
   calibration, mount, the line's lamps and survey);
@@ -34,6 +35,7 @@ LEARN_SPEED_KMH = 60
 LEARN_CELLS = 6
 GROUP_PREFIX = 'passes/'
 SELF_CALIBRATION_FILE = 'self_calibration.yaml'
+LAMP_REFINEMENT_FILE = 'lamp_refinement.yaml'
 BEGIN_MARK, END_MARK = '<!-- passes:begin -->', '<!-- passes:end -->'
 LOCALIZER = 'train_localizer_node'
 
@@ -46,7 +48,9 @@ def run_seed(train, role, index):
 
 
 def _localizer_params(base, files_dir):
-    return dict(base, self_calibration_path=str(pathlib.Path(files_dir) / SELF_CALIBRATION_FILE))
+    files_dir = pathlib.Path(files_dir)
+    return dict(base, self_calibration_path=str(files_dir / SELF_CALIBRATION_FILE),
+                lamp_refinement_path=str(files_dir / LAMP_REFINEMENT_FILE))
 
 
 def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEED_KMH,
@@ -94,17 +98,30 @@ def _copy_files(src, dst, names):
             shutil.copy2(path, dst / name / path.name)
 
 
-def kept_state(files_dir):
-    """What a train keeps (the self-calibration file's values), or {}."""
-    path = pathlib.Path(files_dir) / SELF_CALIBRATION_FILE
-    if not path.exists():
-        return {}
+def _read_yaml(path):
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8')) or {}
-    except yaml.YAMLError:
-        return {}
-    return {k: data.get(k) for k in ('disparity_offset_px', 'disparity_offset_sigma_px',
-                                     'stereo_scale_error', 'stereo_scale_sigma', 'runs')}
+        data = yaml.safe_load(path.read_text(encoding='utf-8')) if path.exists() else None
+    except (OSError, yaml.YAMLError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def kept_state(files_dir):
+    """What a train keeps: the self-calibration file's values and the lamp refinement's
+    passes, triplets and flagged lamps ({} when nothing is kept yet).
+    """
+    state = {}
+    calibration = _read_yaml(pathlib.Path(files_dir) / SELF_CALIBRATION_FILE)
+    if calibration:
+        state.update({k: calibration.get(k) for k in (
+            'disparity_offset_px', 'disparity_offset_sigma_px', 'stereo_scale_error',
+            'stereo_scale_sigma', 'runs')})
+    refinement = _read_yaml(pathlib.Path(files_dir) / LAMP_REFINEMENT_FILE)
+    if refinement:
+        state.update(refinement_passes=refinement.get('passes'),
+                     refinement_triplets=len(refinement.get('triplets') or []),
+                     refinement_flags=len(refinement.get('flags') or []))
+    return state
 
 
 def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOINTS,
@@ -170,7 +187,8 @@ def passes_table(results):
     cm = metrics.cm_text
     head = ('| passes learnt | static max / mean (cm) | '
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
-            + ' | dynamic poses within 3σ | misses | kept disparity offset (px), per train |')
+            + ' | dynamic poses within 3σ | misses | kept per train: disparity offset (px); '
+            'lamp triplets, lamps flagged |')
     rows = [head, '|' + '---|' * (5 + len(speeds))]
     for n, fig in figures.items():
         s = fig['static']
@@ -178,15 +196,20 @@ def passes_table(results):
                  if v in fig['dynamic'] else '–' for v in speeds]
         within = fig['within_3sigma']
         misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
-        kept = ', '.join(
-            (f'{k["disparity_offset_px"]:+.3f} ± {k["disparity_offset_sigma_px"]:.3f}'
-             if k.get('disparity_offset_px') is not None else '–')
-            for _, k in sorted(fig['kept'].items()))
+        kept = ', '.join(_kept_text(k) for _, k in sorted(fig['kept'].items()))
         rows.append(f'| {"first pass" if n == 0 else n} | {cm(s["max_m"])} / '
                     f'{cm(s["mean_m"])} | ' + ' | '.join(cells) + ' | '
                     + ('–' if within is None else f'{100 * within:.1f} %')
                     + f' | {misses} | {kept} |')
     return '\n'.join(rows), figures
+
+
+def _kept_text(kept):
+    offset = (f'{kept["disparity_offset_px"]:+.3f} ± {kept["disparity_offset_sigma_px"]:.3f}'
+              if kept.get('disparity_offset_px') is not None else '–')
+    if kept.get('refinement_passes') is None:
+        return offset
+    return f'{offset}; {kept["refinement_triplets"]}, {kept["refinement_flags"]}'
 
 
 def parse_params(items):
@@ -213,7 +236,7 @@ def describe(results, passes, profile, learn_speed_kmh=LEARN_SPEED_KMH,
             f'km/h each; at each checkpoint static points '
             f'{", ".join(f"{p:g}" for p in points_m)} m and one dynamic run per speed, '
             'with the same seeds at every checkpoint. Localizer parameters: '
-            + (given or 'the defaults') + ' (and `self_calibration_path`).')
+            + (given or 'the defaults') + ' (and `self_calibration_path`, `lamp_refinement_path`).')
 
 
 def update_docs(path, text, command):
