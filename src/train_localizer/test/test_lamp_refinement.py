@@ -38,15 +38,17 @@ X_AXIS = np.array([1.0, 0.0, 0.0])
 
 
 # ------------------------------------------------------------ synthetic passes
-def synthetic_pass(truth_e, rng, sigma=0.008, lam_sd=0.03):
+def synthetic_pass(truth_e, rng, sigma=0.008, lam_sd=0.03, bias=None):
     """One pass's triplet measurements of a chain of lamps whose fixes read ``truth_e``
-    (m, by uid order) too far, each measured with 1σ ``sigma``.
+    (m, by uid order) too far, each measured with 1σ ``sigma`` plus the triplet's own
+    repeatable error ``bias`` ({(a, b, c): m}; the same every pass, as on the graph).
     """
     uids = sorted(truth_e)
     out = []
     for a, b, c in zip(uids, uids[1:], uids[2:]):
         lam = float(np.clip(0.5 + rng.normal(0.0, lam_sd), 0.3, 0.7))
         q = truth_e[b] - lam * truth_e[a] - (1 - lam) * truth_e[c]
+        q += (bias or {}).get((a, b, c), 0.0)
         out.append(TripletMeasurement((a, b, c), lam, q + rng.normal(0.0, sigma), sigma))
     return out
 
@@ -60,14 +62,19 @@ def chain(seed, n=30, gross=None):
     return uids, e, rng
 
 
+def repeatable(uids, rng, sd=0.008):
+    return {key: float(rng.normal(0.0, sd)) for key in zip(uids, uids[1:], uids[2:])}
+
+
 @pytest.mark.parametrize('seed', [1, 2, 3])
-def test_passes_find_a_lamp_off_its_survey_and_shrink_the_map_error(seed):
+def test_passes_find_a_lamp_off_its_survey_and_never_spoil_the_survey(seed):
     uids, truth, rng = chain(seed, gross={12: 0.05})
+    bias = repeatable(uids, rng)
     sigma = dict.fromkeys(uids, 0.003)
     ref = Refinement()
     errors = {}
     for n in range(1, 11):
-        ref = ref.merged(synthetic_pass(truth, rng))
+        ref = ref.merged(synthetic_pass(truth, rng, bias=bias))
         corr, off = ref.corrections(sigma)
         if n in (1, 10):
             errors[n] = np.array([truth[u] - corr[u][0] for u in uids[1:-1]])
@@ -75,14 +82,30 @@ def test_passes_find_a_lamp_off_its_survey_and_shrink_the_map_error(seed):
             z = errors[n] / np.array([corr[u][1] for u in uids[1:-1]])
             assert np.mean(np.abs(z) < 3.0) >= 0.95
     assert set(off) == {uids[12]} and ref.passes == 10
-    assert abs(errors[10][11]) < 0.008                # the gross lamp placed to 8 mm
-    assert abs(errors[1][11]) > 0.02
-    # second differences say nothing of the survey's level and slope: of ordinary
-    # survey errors they remove only the part that varies from lamp to lamp
+    assert abs(errors[10][11]) < 0.025               # the gross lamp placed to 2.5 cm
+    # a 3 mm survey is better than what a pass measures of a lamp (1 cm, much of it the
+    # same every pass): the ordinary lamps keep their survey, no worse than it was
     raw = np.array([truth[u] for u in uids[1:-1] if u != uids[12]])
     left = np.delete(errors[10], 11)
-    assert np.sqrt(np.mean(left ** 2)) < 0.9 * np.sqrt(np.mean(raw ** 2))
+    assert np.sqrt(np.mean(left ** 2)) < 1.1 * np.sqrt(np.mean(raw ** 2))
     assert not ref.flags                              # nothing moved
+
+
+def test_a_poor_survey_is_improved_lamp_to_lamp():
+    rng = np.random.default_rng(9)
+    uids = [0x1000 + k for k in range(1, 41)]
+    truth = dict(zip(uids, rng.normal(0.0, 0.03, len(uids))))     # a 3 cm survey
+    sigma = dict.fromkeys(uids, 0.03)
+    ref = Refinement()
+    for _ in range(10):
+        ref = ref.merged(synthetic_pass(truth, rng, sigma=0.004))
+    corr, _ = ref.corrections(sigma)
+    err = np.array([truth[u] - corr[u][0] for u in uids[1:-1]])
+    raw = np.array([truth[u] for u in uids[1:-1]])
+    # second differences say nothing of the survey's level and slope: of its errors
+    # they remove the part that varies from lamp to lamp
+    assert np.sqrt(np.mean(err ** 2)) < 0.7 * np.sqrt(np.mean(raw ** 2))
+    assert np.mean(np.abs(err) < 3.0 * np.array([corr[u][1] for u in uids[1:-1]])) >= 0.9
 
 
 @pytest.mark.parametrize('seed', [4, 5, 6, 7])
@@ -176,7 +199,7 @@ def test_a_pass_measures_each_lamp_against_its_neighbours_not_the_filter():
     """
     offsets = {5: 0.05}
     ms = run_pass(surveyed(offsets), seed=3)
-    assert len(ms) >= 6
+    assert len(ms) >= 4        # lamps 0x1002-0x1007; those still in view at stop are left out
     uids = [lamp.uid for lamp in straight_tunnel_map(count=12).lamps]
     for m in ms:
         e = [offsets.get(uids.index(u), 0.0) for u in m.uids]

@@ -395,7 +395,7 @@ def test_a_kept_lamp_refinement_is_applied_and_a_bad_one_refused(harness, tmp_pa
 def test_a_run_adds_its_lamp_triplets_to_the_file_at_stop(harness, tmp_path):
     path = tmp_path / 'refinement.yaml'
     h = harness({'lamp_refinement_path': str(path)})
-    traj, events = constant_speed_run(60.0, 3.6, seed=22, start_chainage_m=5.0)
+    traj, events = constant_speed_run(60.0, 4.4, seed=22, start_chainage_m=5.0)
     for _, kind, payload in events:
         if kind == 'imu':
             h.send_imu(imu_msg(payload))

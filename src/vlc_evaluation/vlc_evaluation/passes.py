@@ -48,9 +48,11 @@ def run_seed(train, role, index):
 
 
 def _localizer_params(base, files_dir):
+    """The kept files' paths, unless ``base`` sets them (``lamp_refinement_path: ''``:
+    the refinement off, an ablation)."""
     files_dir = pathlib.Path(files_dir)
-    return dict(base, self_calibration_path=str(files_dir / SELF_CALIBRATION_FILE),
-                lamp_refinement_path=str(files_dir / LAMP_REFINEMENT_FILE))
+    return dict({'self_calibration_path': str(files_dir / SELF_CALIBRATION_FILE),
+                 'lamp_refinement_path': str(files_dir / LAMP_REFINEMENT_FILE)}, **base)
 
 
 def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEED_KMH,

@@ -30,7 +30,7 @@ solved in overlapping blocks (a triplet links only near lamps, so the solution's
 correlation dies out within a few lamps), which keeps a line of thousands of lamps cheap.
 
 **Robustness.** A lamp whose triplets put it more than ``gross_min_m`` and
-``gross_chi2`` from its surveyed place is *off its survey*: its survey prior is loosened
+``off_survey_chi2`` from its surveyed place is *off its survey*: its survey prior is loosened
 so that the triplets alone place it, and it is reported (a wrongly surveyed or re-fitted
 lamp). A triplet whose new measurement contradicts its kept mean by as much *jumped*;
 the lamp that weighs most in the jumping triplets is *moved*: its kept triplets are set
@@ -53,11 +53,20 @@ class RefinementConfig:
     max_span_s: float = 8.0         # longest time over which three lamps are bridged
     close_after_s: float = 1.0      # a lamp with no fix for this long is complete
     sigma_inflation: float = 2.0    # consecutive fixes share unmodelled errors
-    lamp_floor_m: float = 0.001     # a triplet's 1σ never falls below this in one pass
+    # A triplet's 1σ never falls below lamp_floor_m in one pass (the graph's triplets
+    # scatter ~0.8-1 cm from pass to pass), nor its mean over many passes below
+    # kept_floor_m. Besides, the same triplet read up to 1.5 cm off pass after pass on
+    # the realistic graph (a lamp's own tilt, diameter and brightness bias its fixes
+    # alike every time): repeatable_sigma_m, added when the lamps are placed, but not
+    # when a triplet is compared with itself (moved lamps), where it cancels.
+    lamp_floor_m: float = 0.008
+    kept_floor_m: float = 0.0005
+    repeatable_sigma_m: float = 0.008
     bias_floor_mps2: float = 0.002  # prior 1σ of the acceleration bias left over a triplet
-    kept_floor_m: float = 0.0005    # ... nor a triplet's mean over many passes
     gross_min_m: float = 0.02
-    gross_chi2: float = 25.0
+    gross_chi2: float = 25.0        # a moved lamp: its triplets against their kept means
+    off_survey_chi2: float = 16.0   # a lamp off its survey (the repeatable error stays in its
+                                    # σ however many passes: 5 cm is a 4-5σ finding)
     suspect_chi2: float = 9.0       # a new measurement this far from the mean is held apart
     pending_passes: int = 3         # ... and replaces it after this many such passes
     loose_sigma_m: float = 0.5
@@ -145,7 +154,14 @@ class PassRecorder:
             self._open.pop(0)
 
     def finish(self):
-        """Measure what the run left open (at stop); returns every measurement."""
+        """Measure what the run left open (at stop) and return every measurement. A lamp
+        still in view when the run stopped (a fix within ``close_after_s`` of the last
+        one) was seen only from afar: it is left out, as its range-dependent errors
+        would not cancel against its neighbours'.
+        """
+        if self._open:
+            last = max(max(x.t) for x in self._open)
+            self._open = [x for x in self._open if last - max(x.t) > self.config.close_after_s]
         while len(self._open) >= 3:
             self._measure(*self._open[:3])
             self._open.pop(0)
@@ -372,11 +388,13 @@ class Refinement:
         for _ in range(len(uids)):
             best = None
             for u in uids:
-                if u in off or abs(est[u][0]) < 0.5 * c.gross_min_m:
+                # the survey prior pulls a gross lamp most of the way back: screen on
+                # being pulled off by more than its survey 1σ, then solve without it
+                if u in off or abs(est[u][0]) < min(0.5 * c.gross_min_m, prior[u]):
                     continue
                 e2, s2 = self._solve(uids, rows, {**prior, u: c.loose_sigma_m})[u]
                 chi2 = e2 * e2 / (s2 * s2 + prior[u] ** 2)
-                if abs(e2) > c.gross_min_m and chi2 > c.gross_chi2 and (
+                if abs(e2) > c.gross_min_m and chi2 > c.off_survey_chi2 and (
                         best is None or chi2 > best[2]):
                     best = (u, e2, chi2)
             if best is None:
@@ -404,7 +422,7 @@ class Refinement:
                     continue
                 h = np.zeros(m)
                 h[idx] = (-t.lam, 1.0, t.lam - 1.0)
-                w = 1.0 / t.sigma_m ** 2
+                w = 1.0 / (t.sigma_m ** 2 + c.repeatable_sigma_m ** 2)
                 H += w * np.outer(h, h)
                 g += w * t.q_m * h
             cov = np.linalg.inv(H)

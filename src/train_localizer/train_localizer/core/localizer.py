@@ -769,7 +769,7 @@ class Localizer:
         self._apply_fix(t_m, fix)
         mon.on_accepted(t_m, confirmed)
         if confirmed and self.pass_recorder is not None:
-            self.pass_recorder.add(t_m / NS_PER_S, lamp.uid, fix.chainage_m, fix.var_m2)
+            self.pass_recorder.add(t_m / NS_PER_S, lamp.uid, fix.chainage_m, fix.var_random_m2)
         report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
                                       fix.var_m2, d2))
         self._attitude_aid(prep, lamp, fix, report)
