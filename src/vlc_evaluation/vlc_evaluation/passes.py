@@ -49,7 +49,8 @@ def run_seed(train, role, index):
 
 def _localizer_params(base, files_dir):
     """The kept files' paths, unless ``base`` sets them (``lamp_refinement_path: ''``:
-    the refinement off, an ablation)."""
+    the refinement off, an ablation).
+    """
     files_dir = pathlib.Path(files_dir)
     return dict({'self_calibration_path': str(files_dir / SELF_CALIBRATION_FILE),
                  'lamp_refinement_path': str(files_dir / LAMP_REFINEMENT_FILE)}, **base)
