@@ -208,6 +208,9 @@ def main(argv=None):
     parser.add_argument('--passes-param', action='append', default=[], metavar='NAME:=VALUE',
                         help='multi-pass: a localizer parameter for every run (YAML value), '
                              'e.g. use_self_calibration:=true')
+    parser.add_argument('--passes-ablations', action='store_true',
+                        help='multi-pass: at the last checkpoint also score with each of '
+                             + ', '.join(d for d, _ in passes.ABLATIONS.values()))
     parser.add_argument('--passes-docs', nargs='+', default=[],
                         help='multi-pass: also write its table between the passes markers of '
                              'these Markdown files')
@@ -313,7 +316,8 @@ def main(argv=None):
                 out, lamp_map, trains=args.passes_trains, passes=args.passes,
                 checkpoints=args.passes_checkpoints, profile=args.passes_profile,
                 localizer_params=passes_params, lanes=args.lanes, spawn=args.spawn,
-                retries=args.retries, realtime_factor=args.realtime_factor)
+                retries=args.retries, realtime_factor=args.realtime_factor,
+                ablations=tuple(passes.ABLATIONS) if args.passes_ablations else ())
             total += sum(len(r.get(k, ())) for t in passes_results.values()
                          for r in t.values() for k in ('static', 'dynamic')) + len(
                              passes_results) * args.passes

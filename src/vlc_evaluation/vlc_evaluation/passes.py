@@ -19,6 +19,11 @@ Rounds: round k runs learning pass k + 1 of every train and the scored runs of
 checkpoint k, on the evaluation's lanes. Bags, logs and results in
 ``<out>/passes/train<i>/{pass<k>,after<n>/static,after<n>/dynamic}/``; the kept files in
 ``<out>/passes/train<i>/kept/`` and their copies in ``after<n>/files/``.
+
+*Ablations* (``ablations``): at the last checkpoint the scored runs are run again once
+per variant, each with one localizer switch turned (:data:`ABLATIONS`: the refinement
+off, the self-calibration turned the other way), reading the same kept files, in
+``after<n>/<variant>/``.
 """
 import json
 import pathlib
@@ -38,6 +43,14 @@ SELF_CALIBRATION_FILE = 'self_calibration.yaml'
 LAMP_REFINEMENT_FILE = 'lamp_refinement.yaml'
 BEGIN_MARK, END_MARK = '<!-- passes:begin -->', '<!-- passes:end -->'
 LOCALIZER = 'train_localizer_node'
+#: name -> (what it turns, localizer parameters on top of the run's, given the run's)
+ABLATIONS = {
+    'no_refinement': ('lamp-map refinement off',
+                      lambda given: {'lamp_refinement_path': ''}),
+    'self_calibration_turned': (
+        'self-calibration turned the other way',
+        lambda given: {'use_self_calibration': not given.get('use_self_calibration', False)}),
+}
 
 
 def run_seed(train, role, index):
@@ -130,9 +143,10 @@ def kept_state(files_dir):
 def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOINTS,
                profile='realistic', points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH,
                learn_speed_kmh=LEARN_SPEED_KMH, localizer_params=None, lanes=2,
-               spawn='fork', progress=None, retries=1, realtime_factor=1.0):
+               spawn='fork', progress=None, retries=1, realtime_factor=1.0, ablations=()):
     """Run the protocol; returns ``{train: {checkpoint: {'static': [...], 'dynamic':
-    [...], 'kept': {...}}}}`` (also written to ``<out>/passes/results.json``).
+    [...], 'kept': {...}(, 'ablations': {variant: {'static': …, 'dynamic': …}})}}}``
+    (also written to ``<out>/passes/results.json``).
     """
     out_dir = pathlib.Path(out_dir)
     root = out_dir / GROUP_PREFIX.rstrip('/')
@@ -159,6 +173,17 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
                 results[int(t)][k] = {'kept': kept_state(base / 'kept')}
                 groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/static'] = static
                 groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/dynamic'] = dynamic
+                for name in (ablations if k == checkpoints[-1] else ()):
+                    given = dict(localizer_params or {})
+                    turned = dict(given, **ABLATIONS[name][1](given))
+                    own = base / f'after{k:02d}' / name / 'files'
+                    shutil.rmtree(own, ignore_errors=True)
+                    static, dynamic = scored_runs(t, own, profile, points_m, speeds_kmh,
+                                                  localizer_params=turned,
+                                                  realtime_factor=realtime_factor)
+                    _copy_files(base / 'kept', own, [s.name for s in static + dynamic])
+                    groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/{name}/static'] = static
+                    groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/{name}/dynamic'] = dynamic
         if not groups:
             continue
         done = scenarios.run_protocols(groups, out_dir, lamp_map, lanes=lanes, spawn=spawn,
@@ -168,6 +193,11 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
                 group = f'{GROUP_PREFIX}train{t}/after{k:02d}/{kind}'
                 if group in done:
                     results[int(t)][k][kind] = done[group]
+                for name in ablations:
+                    group = f'{GROUP_PREFIX}train{t}/after{k:02d}/{name}/{kind}'
+                    if group in done:
+                        results[int(t)][k].setdefault('ablations', {}).setdefault(
+                            name, {})[kind] = done[group]
     with open(root / 'results.json', 'w', encoding='utf-8') as stream:
         json.dump({str(t): {str(n): v for n, v in r.items()} for t, r in results.items()},
                   stream)
@@ -181,11 +211,18 @@ def passes_table(results):
     checkpoints = sorted({n for r in results.values() for n in r})
     figures = {}
     for n in checkpoints:
-        static = [x for r in results.values() for x in r.get(n, {}).get('static', [])]
-        dynamic = [x for r in results.values() for x in r.get(n, {}).get('dynamic', [])]
-        kept = {t: r[n].get('kept', {}) for t, r in results.items() if n in r}
-        figures[n] = dict(ablations.protocol_summary(static, dynamic),
-                          within_3sigma=budget.within_3sigma(dynamic), kept=kept)
+        variants = {n: lambda c: c}
+        variants.update({(n, name): (lambda c, name=name: c.get('ablations', {}).get(name, {}))
+                     for name in ABLATIONS
+                     if any(name in r.get(n, {}).get('ablations', {})
+                            for r in results.values())})
+        for key, pick in variants.items():
+            static = [x for r in results.values() for x in pick(r.get(n, {})).get('static', [])]
+            dynamic = [x for r in results.values()
+                       for x in pick(r.get(n, {})).get('dynamic', [])]
+            kept = {t: r[n].get('kept', {}) for t, r in results.items() if n in r}
+            figures[key] = dict(ablations.protocol_summary(static, dynamic),
+                                within_3sigma=budget.within_3sigma(dynamic), kept=kept)
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})
     cm = metrics.cm_text
     head = ('| passes learnt | static max / mean (cm) | '
@@ -200,7 +237,9 @@ def passes_table(results):
         within = fig['within_3sigma']
         misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
         kept = ', '.join(_kept_text(k) for _, k in sorted(fig['kept'].items()))
-        rows.append(f'| {"first pass" if n == 0 else n} | {cm(s["max_m"])} / '
+        label = (f'{n[0]}, {ABLATIONS[n[1]][0]}' if isinstance(n, tuple)
+                 else 'first pass' if n == 0 else n)
+        rows.append(f'| {label} | {cm(s["max_m"])} / '
                     f'{cm(s["mean_m"])} | ' + ' | '.join(cells) + ' | '
                     + ('–' if within is None else f'{100 * within:.1f} %')
                     + f' | {misses} | {kept} |')
