@@ -1,6 +1,8 @@
 """The multi-pass protocol (evaluation/passes.py): one train, one line, run again and
 again; and ``installation_seed``, which makes that possible.
 """
+import pathlib
+
 import pytest
 import yaml
 
@@ -59,16 +61,27 @@ def test_learning_passes_and_scored_runs_keep_their_train_and_seeds(tmp_path):
     assert {s.rig_profile for s in first[0] + first[1]} == {'realistic'}
 
 
-def test_each_scored_run_gets_its_own_copy_of_the_kept_files(tmp_path):
+def test_every_attempt_starts_from_a_fresh_copy_of_the_kept_files(tmp_path):
     kept = tmp_path / 'kept'
-    passes._copy_files(kept, tmp_path / 'files', ['a'])          # nothing kept yet
-    assert list((tmp_path / 'files' / 'a').iterdir()) == []
+    static, _ = passes.scored_runs(2, tmp_path / 'files', kept_dir=kept)
+    run = static[0]
+    assert run.files_to == str(tmp_path / 'files' / run.name)
+    run.restore_files()                                  # nothing kept yet
+    assert list(pathlib.Path(run.files_to).iterdir()) == []
     kept.mkdir()
     (kept / 'self_calibration.yaml').write_text('disparity_offset_px: 0.3\n')
-    passes._copy_files(kept, tmp_path / 'files', ['a', 'b'])
-    for name in 'ab':
-        assert (tmp_path / 'files' / name / 'self_calibration.yaml').read_text() == \
-            'disparity_offset_px: 0.3\n'
+    run.restore_files()
+    own = pathlib.Path(run.files_to) / 'self_calibration.yaml'
+    assert own.read_text() == 'disparity_offset_px: 0.3\n'
+    # what a failed attempt wrote back is gone at the next one
+    own.write_text('disparity_offset_px: 9\n')
+    (pathlib.Path(run.files_to) / 'lamp_refinement.yaml').write_text('passes: 1\n')
+    run.restore_files()
+    assert own.read_text() == 'disparity_offset_px: 0.3\n'
+    assert sorted(p.name for p in pathlib.Path(run.files_to).iterdir()) == [
+        'self_calibration.yaml']
+    learn = passes.learning_pass(2, 1, tmp_path / 'pass01', kept_dir=kept)
+    assert (learn.files_from, learn.files_to) == (str(kept), str(tmp_path / 'pass01'))
 
 
 def test_kept_state_reads_both_files(tmp_path):

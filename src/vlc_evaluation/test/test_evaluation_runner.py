@@ -259,6 +259,10 @@ def test_param_text_quotes_strings_in_lists_so_a_colon_stays_in_them():
     text = param_text(['rig_profile=realistic/only:lens', 'seed=1', 2.5, True])
     assert yaml.safe_load(text) == ['rig_profile=realistic/only:lens', 'seed=1', 2.5, True]
     assert param_text([1, 2]) == '[1,2]' and param_text(False) == 'false'
+    # strings rcl would read as no value, a bool or a number stay strings
+    for value in ('', 'true', '1.5', '/tmp/a b/file.yaml', "it's"):
+        assert yaml.safe_load(param_text(value)) == value
+    assert param_text('/tmp/kept/lamp_refinement.yaml') == '/tmp/kept/lamp_refinement.yaml'
 
 
 @pytest.mark.parametrize('fixed, paces', [(False, [0.5, 0.25, 0.15]), (True, [1.0, 1.0, 1.0])])

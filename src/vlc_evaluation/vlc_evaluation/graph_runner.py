@@ -35,6 +35,8 @@ import sys
 import threading
 import time
 
+import yaml
+
 SPAWN_MODES = ('exec', 'fork')
 # how GraphRun.start hands a forked child its niceness (not left in the node's environment)
 NICE_ENV = 'VLC_GRAPH_RUNNER_NICE'
@@ -56,6 +58,14 @@ def param_text(value):
         # strings quoted: a ':' or ',' inside one would end it in a YAML flow sequence
         return '[' + ','.join(json.dumps(v) if isinstance(v, str) else param_text(v)
                               for v in value) + ']'
+    if isinstance(value, str):
+        # rcl reads the value as YAML: '' would be no value at all, 'true' or '1.5' a
+        # bool or a number; such strings go quoted
+        try:
+            plain = value != '' and yaml.safe_load(value) == value
+        except yaml.YAMLError:
+            plain = False
+        return value if plain else json.dumps(value)
     return str(value)
 
 

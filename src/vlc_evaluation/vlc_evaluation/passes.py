@@ -18,7 +18,10 @@ measures what that is worth on a drawn rig profile:
 Rounds: round k runs learning pass k + 1 of every train and the scored runs of
 checkpoint k, on the evaluation's lanes. Bags, logs and results in
 ``<out>/passes/train<i>/{pass<k>,after<n>/static,after<n>/dynamic}/``; the kept files in
-``<out>/passes/train<i>/kept/`` and their copies in ``after<n>/files/``.
+``<out>/passes/train<i>/kept/`` (replaced by what each learning pass wrote in
+``pass<k>/files/``, which every attempt of the pass starts as a fresh copy of them), as
+checkpoint n found them in ``after<n>/kept/``, and each scored run's own copy in
+``after<n>/files/<run>/``.
 
 *Ablations* (``ablations``): at the last checkpoint the scored runs are run again once
 per variant, each with one localizer switch turned (:data:`ABLATIONS`: the refinement
@@ -70,9 +73,10 @@ def _localizer_params(base, files_dir):
 
 
 def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEED_KMH,
-                  cells=LEARN_CELLS, localizer_params=None, realtime_factor=1.0):
+                  cells=LEARN_CELLS, localizer_params=None, realtime_factor=1.0,
+                  kept_dir=None):
     """Learning pass ``k`` (1, 2, …) of ``train``: a dynamic run that reads and writes
-    the kept files in ``files_dir``.
+    the files in ``files_dir``, a fresh copy of ``kept_dir`` at every attempt.
     """
     scenario = scenarios.dynamic_scenarios(speeds_kmh=(speed_kmh,), runs=1, cells=cells,
                                            first_seed=run_seed(train, 0, k))[0]
@@ -80,14 +84,16 @@ def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEE
     scenario.rig_profile, scenario.installation_seed = profile, int(train)
     scenario.realtime_factor = realtime_factor
     scenario.node_params = {LOCALIZER: _localizer_params(localizer_params or {}, files_dir)}
+    scenario.files_from, scenario.files_to = str(kept_dir or ''), str(files_dir)
     return scenario
 
 
 def scored_runs(train, files_dir, profile='realistic', points_m=STATIC_POINTS_M,
                 speeds_kmh=SPEEDS_KMH, cells=4, observe_s=scenarios.STATIC_OBSERVE_S,
-                localizer_params=None, realtime_factor=1.0):
+                localizer_params=None, realtime_factor=1.0, kept_dir=None):
     """(static, dynamic) Scenarios of one checkpoint of ``train``; each reads its own
-    copy of the files in ``files_dir`` (what it writes back is not kept).
+    copy of the files of ``kept_dir`` in ``files_dir/<name>`` (what it writes back is
+    not kept).
     """
     static = [scenarios.static_scenarios(points_m=(d,), trials=1, observe_s=observe_s,
                                          first_seed=run_seed(train, 1, i))[0]
@@ -100,18 +106,8 @@ def scored_runs(train, files_dir, profile='realistic', points_m=STATIC_POINTS_M,
         scenario.realtime_factor = realtime_factor
         own = pathlib.Path(files_dir) / scenario.name
         scenario.node_params = {LOCALIZER: _localizer_params(localizer_params or {}, own)}
+        scenario.files_from, scenario.files_to = str(kept_dir or ''), str(own)
     return static, dynamic
-
-
-def _copy_files(src, dst, names):
-    """Give each scored run ``dst/<name>/`` a copy of the kept files of ``src`` (none
-    yet: an empty folder, a first run).
-    """
-    kept = sorted(pathlib.Path(src).glob('*.yaml')) if pathlib.Path(src).is_dir() else []
-    for name in names:
-        (dst / name).mkdir(parents=True, exist_ok=True)
-        for path in kept:
-            shutil.copy2(path, dst / name / path.name)
 
 
 def _read_yaml(path):
@@ -161,34 +157,38 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
             base = root / f'train{t}'
             if k < passes:
                 groups[f'{GROUP_PREFIX}train{t}/pass{k + 1:02d}'] = [learning_pass(
-                    t, k + 1, base / 'kept', profile, learn_speed_kmh,
-                    localizer_params=localizer_params, realtime_factor=realtime_factor)]
+                    t, k + 1, base / f'pass{k + 1:02d}' / 'files', profile, learn_speed_kmh,
+                    localizer_params=localizer_params, realtime_factor=realtime_factor,
+                    kept_dir=base / 'kept')]
             if k in checkpoints:
-                files = base / f'after{k:02d}' / 'files'
-                shutil.rmtree(files, ignore_errors=True)
-                static, dynamic = scored_runs(t, files, profile, points_m, speeds_kmh,
-                                              localizer_params=localizer_params,
-                                              realtime_factor=realtime_factor)
-                _copy_files(base / 'kept', files, [s.name for s in static + dynamic])
-                results[int(t)][k] = {'kept': kept_state(base / 'kept')}
-                groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/static'] = static
-                groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/dynamic'] = dynamic
-                for name in (ablations if k == checkpoints[-1] else ()):
-                    given = dict(localizer_params or {})
-                    turned = dict(given, **ABLATIONS[name][1](given))
-                    own = base / f'after{k:02d}' / name / 'files'
-                    shutil.rmtree(own, ignore_errors=True)
-                    static, dynamic = scored_runs(t, own, profile, points_m, speeds_kmh,
-                                                  localizer_params=turned,
-                                                  realtime_factor=realtime_factor)
-                    _copy_files(base / 'kept', own, [s.name for s in static + dynamic])
-                    groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/{name}/static'] = static
-                    groups[f'{GROUP_PREFIX}train{t}/after{k:02d}/{name}/dynamic'] = dynamic
+                # the files as k passes left them, for the record and the scored runs
+                kept = base / f'after{k:02d}' / 'kept'
+                shutil.rmtree(kept, ignore_errors=True)
+                shutil.copytree(base / 'kept', kept)
+                results[int(t)][k] = {'kept': kept_state(kept)}
+                variants = [('', dict(localizer_params or {}))] + [
+                    (name, dict(localizer_params or {},
+                                **ABLATIONS[name][1](dict(localizer_params or {}))))
+                    for name in (ablations if k == checkpoints[-1] else ())]
+                for name, params in variants:
+                    where = base / f'after{k:02d}' / name
+                    static, dynamic = scored_runs(t, where / 'files', profile, points_m,
+                                                  speeds_kmh, localizer_params=params,
+                                                  realtime_factor=realtime_factor,
+                                                  kept_dir=kept)
+                    group = f'{GROUP_PREFIX}train{t}/after{k:02d}/' + (f'{name}/' if name else '')
+                    groups[group + 'static'] = static
+                    groups[group + 'dynamic'] = dynamic
         if not groups:
             continue
         done = scenarios.run_protocols(groups, out_dir, lamp_map, lanes=lanes, spawn=spawn,
                                        progress=progress, retries=retries)
         for t in trains:
+            base = root / f'train{t}'
+            if k < passes:
+                # what the pass wrote is what the train keeps
+                shutil.rmtree(base / 'kept')
+                shutil.copytree(base / f'pass{k + 1:02d}' / 'files', base / 'kept')
             for kind in ('static', 'dynamic'):
                 group = f'{GROUP_PREFIX}train{t}/after{k:02d}/{kind}'
                 if group in done:

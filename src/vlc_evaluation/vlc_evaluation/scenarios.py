@@ -74,6 +74,10 @@ class Scenario:
     publishes it through ``calibration_paths``). ``installation_seed`` (0 = ``seed``)
     draws the installation, ``seed`` the run (sensor noise, platform motion, IMU biases):
     the multi-pass protocol runs one train on one line again and again (:mod:`.passes`).
+    ``files_from`` / ``files_to``: before every attempt ``files_to`` is emptied and the
+    ``*.yaml`` of ``files_from`` (if it exists) copied into it — the files a run reads and
+    writes back (the localizer's kept files), so that a retried attempt starts from the
+    same files as the first, not from what the failed one wrote.
     """
 
     name: str
@@ -99,6 +103,19 @@ class Scenario:
     rig_profile: str = 'ideal'
     calibration: str = 'drawn'
     installation_seed: int = 0
+    files_from: str = ''
+    files_to: str = ''
+
+    def restore_files(self):
+        """``files_to`` as a fresh copy of ``files_from``'s ``*.yaml`` (see above)."""
+        if not self.files_to:
+            return
+        dst = pathlib.Path(self.files_to)
+        shutil.rmtree(dst, ignore_errors=True)
+        dst.mkdir(parents=True, exist_ok=True)
+        src = pathlib.Path(self.files_from) if self.files_from else None
+        for path in sorted(src.glob('*.yaml')) if src is not None and src.is_dir() else ():
+            shutil.copy2(path, dst / path.name)
 
     @property
     def drawn_seed(self):
@@ -314,6 +331,7 @@ def _run_with_retries(scenario, bag_dir, lane, lamp_map, retries):
             # the logs of a degraded attempt are kept beside the new ones
             shutil.rmtree(bag_dir / f'{run.name}.logs.attempt{attempt - 1}', ignore_errors=True)
             logs.rename(bag_dir / f'{run.name}.logs.attempt{attempt - 1}')
+        run.restore_files()
         bag, timing = run_scenario(run, bag_dir, lane, run.recorded_topics())
         scored_at = time.monotonic()
         result = score_scenario(bag, run, lamp_map)

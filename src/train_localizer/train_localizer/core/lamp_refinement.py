@@ -62,6 +62,12 @@ class RefinementConfig:
     lamp_floor_m: float = 0.008
     kept_floor_m: float = 0.0005
     repeatable_sigma_m: float = 0.008
+    # ... and it changes with the speed (the fixes' range bias does): a triplet read at
+    # another speed than its kept mean may differ by this much without a lamp moving
+    speed_sigma_m: float = 0.005
+    # λ of a triplet of consecutive lamps is ~0.5; one with a lamp missing between
+    # (unconfirmed or dark: λ 0.33, 0.25) read up to 6 cm off on the graph: not measured
+    lam_range: tuple = (0.4, 0.6)
     bias_floor_mps2: float = 0.002  # prior 1σ of the acceleration bias left over a triplet
     gross_min_m: float = 0.02
     gross_chi2: float = 25.0        # a moved lamp: its triplets against their kept means
@@ -220,6 +226,8 @@ class PassRecorder:
         sigma = max(math.sqrt(max(cov[3, 3], 0.0)) * scale * c.sigma_inflation,
                     c.lamp_floor_m)
         lam = (times[2] - times[1]) / (times[2] - times[0])
+        if not c.lam_range[0] <= lam <= c.lam_range[1]:
+            return
         applied = [self.applied.get(x.uid, 0.0) for x in lamps]
         q = float(sol[3]) + applied[1] - lam * applied[0] - (1.0 - lam) * applied[2]
         if math.isfinite(q) and math.isfinite(sigma):
@@ -352,7 +360,8 @@ class Refinement:
         by_lamp = {}
         for key, r in recent.items():
             t = self.triplets[key]
-            diff, var = r.q_m - t.q_m, r.sigma_m ** 2 + t.sigma_m ** 2
+            diff = r.q_m - t.q_m
+            var = r.sigma_m ** 2 + t.sigma_m ** 2 + self.config.speed_sigma_m ** 2
             for uid, h in zip(key, (-t.lam, 1.0, t.lam - 1.0)):
                 by_lamp.setdefault(uid, []).append((h, diff, var))
         out = []
