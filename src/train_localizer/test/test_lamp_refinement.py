@@ -125,7 +125,8 @@ def test_a_lamp_moved_between_passes_is_flagged_within_three_passes(seed, tmp_pa
         if ref.flags:
             break
     assert [f.uid for f in ref.flags] == [uids[15]] and ref.flags[0].kind == 'moved'
-    assert ref.flags[0].reason.startswith(('moved +5', 'moved +4', 'moved +6'))
+    # its fixes read 5 cm further: the lamp stands 5 cm back along the track
+    assert ref.flags[0].reason.startswith(('moved -5', 'moved -4', 'moved -6'))
     # its earlier triplets are kept apart, not averaged with the new place
     assert set(ref.flags[0].previous) == {key for key in before if uids[15] in key}
     corr, _ = ref.corrections(dict.fromkeys(uids, 0.003))
@@ -165,8 +166,16 @@ SPEED_MPS = 60.0 / 3.6
 
 
 @functools.cache
-def pass_events(seed):
+def pass_events(seed, moved=None):
+    """One pass at 60 km/h; ``moved`` (index, m): that lamp really stands so much further
+    along the track than anyone surveyed it.
+    """
     truth = straight_tunnel_map(count=12)
+    if moved is not None:
+        lamps = list(truth.lamps)
+        lamps[moved[0]] = dataclasses.replace(
+            lamps[moved[0]], position_m=lamps[moved[0]].position_m + [moved[1], 0.0, 0.0])
+        truth = LampMap(lamps)
     traj = Trajectory(MotionProfile('constant', start_chainage_m=8.0, speed_mps=SPEED_MPS),
                       Vibration(seed=seed))
     sim = SensorSimulator(traj, RIG, truth, SensorErrors(), np.random.default_rng(seed))
@@ -182,13 +191,13 @@ def surveyed(offsets):
                     for i, lamp in enumerate(lamps)])
 
 
-def run_pass(belief, seed, applied=None):
+def run_pass(belief, seed, applied=None, moved=None):
     k = RIG.intrinsics
     geometry = RigGeometry(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, baseline_m=RIG.baseline_m,
                            t_base_cam=RIG.cam_positions_base()[0], R_base_cam=RIG.R_base_cam)
     loc = Localizer(belief, LocalizerConfig(geometry=geometry, refinement=RefinementConfig(),
                                             refinement_applied=applied or {}))
-    feed_localizer(loc, pass_events(seed))
+    feed_localizer(loc, pass_events(seed, moved))
     return loc.pass_recorder.finish()
 
 
@@ -218,6 +227,30 @@ def test_a_refined_map_is_measured_in_survey_terms():
     fixed = {m.uids: m.q_m for m in run_pass(surveyed({}), seed=4, applied={uids[5]: 0.05})}
     for key in set(raw) & set(fixed):
         assert fixed[key] == pytest.approx(raw[key], abs=0.012)
+
+
+def test_a_lamp_moved_in_the_tunnel_is_flagged_within_three_passes(tmp_path):
+    """Passes through the localizer: three on the line as surveyed, then lamp 5 is
+    re-fitted 5 cm further along; what each pass keeps goes through the file.
+    """
+    line = surveyed({})
+    path = tmp_path / 'refinement.yaml'
+    flagged_at = None
+    for k in range(6):
+        moved = (5, 0.05) if k >= 3 else None
+        ref = load_refinement(path, line) or Refinement()
+        ref = ref.merged(run_pass(line, seed=30 + k, moved=moved))
+        save_refinement(path, ref, line)
+        if k < 3:
+            assert not ref.flags                       # nothing moved yet
+        elif ref.flags and flagged_at is None:
+            flagged_at = k
+    assert flagged_at is not None and flagged_at <= 5
+    uid = straight_tunnel_map(count=12).lamps[5].uid
+    flag = load_refinement(path, line).flags
+    assert [f.uid for f in flag] == [uid] and flag[0].kind == 'moved'
+    assert flag[0].reason.startswith(('moved +4', 'moved +5', 'moved +6'))
+    assert flag[0].previous                            # its old triplets kept apart
 
 
 # ------------------------------------------------------------ the file

@@ -116,7 +116,7 @@ def test_passes_table_has_a_row_per_checkpoint(tmp_path):
     lines = table.splitlines()
     assert len(lines) == 4 and lines[2].startswith('| first pass | 8.00 / 8.00 | 5.00 / 5.00')
     assert lines[3].startswith('| 3 | 2.00 / 2.00 | 1.00 / 1.00 | 100.0 % | 0 | '
-                               '+0.250 ± 0.100; 40, 1 |')
+                               '1: δ +0.250 ± 0.100 px, 40 triplets, 1 flagged |')
     # an ablation at the last checkpoint: a row of its own under it
     results[1][3]['ablations'] = {'no_refinement': {
         'static': [{'error_m': 0.03, 'seed': 1}], 'dynamic': [dynamic(40.0, 0.02)]}}

@@ -227,8 +227,8 @@ def passes_table(results):
     cm = metrics.cm_text
     head = ('| passes learnt | static max / mean (cm) | '
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
-            + ' | dynamic poses within 3σ | misses | kept per train: disparity offset (px); '
-            'lamp triplets, lamps flagged |')
+            + ' | dynamic poses within 3σ | misses | kept, per train: self-calibration δ, '
+            'lamp refinement |')
     rows = [head, '|' + '---|' * (5 + len(speeds))]
     for n, fig in figures.items():
         s = fig['static']
@@ -236,7 +236,7 @@ def passes_table(results):
                  if v in fig['dynamic'] else '–' for v in speeds]
         within = fig['within_3sigma']
         misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
-        kept = ', '.join(_kept_text(k) for _, k in sorted(fig['kept'].items()))
+        kept = '; '.join(_kept_text(t, k) for t, k in sorted(fig['kept'].items()))
         label = (f'{n[0]}, {ABLATIONS[n[1]][0]}' if isinstance(n, tuple)
                  else 'first pass' if n == 0 else n)
         rows.append(f'| {label} | {cm(s["max_m"])} / '
@@ -246,12 +246,15 @@ def passes_table(results):
     return '\n'.join(rows), figures
 
 
-def _kept_text(kept):
-    offset = (f'{kept["disparity_offset_px"]:+.3f} ± {kept["disparity_offset_sigma_px"]:.3f}'
-              if kept.get('disparity_offset_px') is not None else '–')
-    if kept.get('refinement_passes') is None:
-        return offset
-    return f'{offset}; {kept["refinement_triplets"]}, {kept["refinement_flags"]}'
+def _kept_text(train, kept):
+    parts = []
+    if kept.get('disparity_offset_px') is not None:
+        parts.append(f'δ {kept["disparity_offset_px"]:+.3f} ± '
+                     f'{kept["disparity_offset_sigma_px"]:.3f} px')
+    if kept.get('refinement_passes') is not None:
+        parts.append(f'{kept["refinement_triplets"]} triplets, '
+                     f'{kept["refinement_flags"]} flagged')
+    return f'{train}: ' + (', '.join(parts) or 'nothing')
 
 
 def parse_params(items):

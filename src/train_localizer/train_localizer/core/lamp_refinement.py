@@ -326,7 +326,8 @@ class Refinement:
                 else:
                     del out.triplets[k]
             out.flags = out.flags + [Flag(
-                uid, 'moved', f'moved {delta * 100:+.1f} cm along the track against the '
+                # e is how much too far the fixes read: the lamp itself moved by −e
+                uid, 'moved', f'moved {-delta * 100:+.1f} cm along the track against the '
                 f'passes before (chi2 {chi2:.0f}), seen in pass {out.passes}', out.passes,
                 {k: KeptTriplet(v.lam, v.q_m, v.sigma_m, v.passes)
                  for k, v in previous.items()})]
@@ -408,7 +409,7 @@ class Refinement:
                     best = (u, e2, chi2)
             if best is None:
                 break
-            off[best[0]] = f'{best[1] * 100:+.1f} cm from its surveyed place'
+            off[best[0]] = f'{-best[1] * 100:+.1f} cm along the track from its surveyed place'
             prior[best[0]] = c.loose_sigma_m
             est = self._solve(uids, rows, prior)
         return est, off
