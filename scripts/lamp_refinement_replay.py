@@ -16,33 +16,9 @@ import tempfile
 
 import numpy as np
 
-from train_localizer.core import localizer as localizer_module
 from train_localizer.core.lamp_refinement_file import save_refinement
 from vlc_common.core.lamp_map import LampMap
 from vlc_evaluation import localizer_replay as lr
-
-
-def replay(bag, refinement_path):
-    """The Localizer core after replaying ``bag`` with the refinement file."""
-    inst = bag.parent / (bag.name + '.installation')
-    params = lr.load_params(None, {'lamp_map_path': str(inst / 'belief/lamp_map.yaml'),
-                                   'vehicle_path': str(inst / 'belief/vehicle.yaml'),
-                                   'lamp_refinement_path': str(refinement_path)})
-    camera_info = lr.camera_info_messages([inst / 'belief/left.yaml',
-                                           inst / 'belief/right.yaml'])
-    made = []
-    original = localizer_module.Localizer.__init__
-
-    def init(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(self)
-
-    localizer_module.Localizer.__init__ = init
-    try:
-        lr.replay(str(bag), params, camera_info=camera_info)
-        return made[0]
-    finally:
-        localizer_module.Localizer.__init__ = original
 
 
 def along_track_errors(bag):
@@ -72,7 +48,7 @@ def main(argv=None):
           '| off survey | flagged |')
     print('|---|---|---|---|---|---|---|---|---|---|')
     for k, bag in enumerate(bags, 1):
-        loc = replay(bag, path)
+        loc = lr.replay_with_belief(bag, {'lamp_refinement_path': str(path)}).localizer
         kept = loc.config.refinement_kept
         measurements = loc.pass_recorder.finish()
         merged = kept.base.merged(measurements)

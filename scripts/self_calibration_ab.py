@@ -16,30 +16,13 @@ import pathlib
 
 import numpy as np
 
-from train_localizer.core import localizer as localizer_module
 from vlc_evaluation import localizer_replay as lr
 
 
 def replay(bag, on):
     """(ReplayResult, the Localizer) of one bag, self-calibration on or off."""
-    inst = bag.parent / (bag.name + '.installation')
-    params = lr.load_params(None, {'use_self_calibration': on,
-                                   'lamp_map_path': str(inst / 'belief/lamp_map.yaml'),
-                                   'vehicle_path': str(inst / 'belief/vehicle.yaml')})
-    camera_info = lr.camera_info_messages([inst / 'belief/left.yaml',
-                                           inst / 'belief/right.yaml'])
-    made = []
-    original = localizer_module.Localizer.__init__
-
-    def init(self, *args, **kwargs):
-        original(self, *args, **kwargs)
-        made.append(self)
-
-    localizer_module.Localizer.__init__ = init
-    try:
-        return lr.replay(str(bag), params, camera_info=camera_info), made[0]
-    finally:
-        localizer_module.Localizer.__init__ = original
+    result = lr.replay_with_belief(bag, {'use_self_calibration': on})
+    return result, result.localizer
 
 
 def scores(result, static):

@@ -64,6 +64,21 @@ def within_3sigma(dynamic):
     return sum(f * n for f, n in pairs) / total if total else None
 
 
+def summary_cells(fig, speeds):
+    """Table cells of one row of figures (``protocol_summary`` plus ``within_3sigma``):
+    static max / mean, max / mean per speed, the dynamic poses within 3σ, misses.
+    """
+    cm = metrics.cm_text
+    s = fig['static']
+    cells = [f'{cm(s["max_m"])} / {cm(s["mean_m"])}']
+    cells += [f'{cm(fig["dynamic"][v]["max_m"])} / {cm(fig["dynamic"][v]["mean_m"])}'
+              if v in fig['dynamic'] else '–' for v in speeds]
+    within = fig['within_3sigma']
+    cells.append('–' if within is None else f'{100 * within:.1f} %')
+    cells.append(str(s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())))
+    return cells
+
+
 def budget_table(results, profile='realistic'):
     """(Markdown table, figures) of the budget rows found in ``results`` (``{group:
     [result]}`` as :func:`scenarios.run_protocols` returns them).
@@ -83,16 +98,9 @@ def budget_table(results, profile='realistic'):
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
             + ' | dynamic poses within 3σ | misses |')
     rows = [head, '|' + '---|' * (4 + len(speeds))]
-    cm = metrics.cm_text
     for name, fig in figures.items():
-        s = fig['static']
-        cells = [f'{cm(fig["dynamic"][v]["max_m"])} / {cm(fig["dynamic"][v]["mean_m"])}'
-                 if v in fig['dynamic'] else '–' for v in speeds]
-        within = fig['within_3sigma']
-        misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
-        rows.append(f'| `{name}`: {fig["label"]} | {cm(s["max_m"])} / {cm(s["mean_m"])} | '
-                    + ' | '.join(cells) + ' | '
-                    + ('–' if within is None else f'{100 * within:.1f} %') + f' | {misses} |')
+        rows.append(f'| `{name}`: {fig["label"]} | ' + ' | '.join(summary_cells(fig, speeds))
+                    + ' |')
     return '\n'.join(rows), figures
 
 

@@ -149,6 +149,21 @@ class ReplayResult:
     fix_ms: list
     truth_yaw: np.ndarray = None          # (N,) rad, beside truth_t
     heading: np.ndarray = None            # (M, 2) t_s, compensator yaw rad (--compensator)
+    localizer: object = None              # the Localizer core as the bag left it
+
+
+def replay_with_belief(bag, overrides=None):
+    """:func:`replay` of a drawn-profile bag with the belief files written beside it
+    (``<bag>.installation/belief``: calibration, vehicle, surveyed map) and the node's
+    parameter defaults, ``overrides`` on top.
+    """
+    bag = pathlib.Path(bag)
+    belief = bag.parent / (bag.name + '.installation') / 'belief'
+    params = load_params(None, dict({'lamp_map_path': str(belief / 'lamp_map.yaml'),
+                                     'vehicle_path': str(belief / 'vehicle.yaml')},
+                                    **(overrides or {})))
+    camera_info = camera_info_messages([belief / 'left.yaml', belief / 'right.yaml'])
+    return replay(str(bag), params, camera_info=camera_info)
 
 
 def camera_info_messages(paths):
@@ -229,7 +244,7 @@ def replay(bag, params, compensator=None, camera_info=None):
     order = np.argsort(t[:, 0], kind='stable')
     heading = np.asarray(compensator.heading, float).reshape(-1, 2) if compensator else None
     return ReplayResult(p[:, 0], p[:, 1:4], p[:, 4], t[order, 0], t[order, 1:4], status, fix_ms,
-                        np.unwrap(t[order, 4]), heading)
+                        np.unwrap(t[order, 4]), heading, loc)
 
 
 def score(result, settle_s=0.0):

@@ -34,7 +34,7 @@ import shutil
 
 import yaml
 
-from vlc_evaluation import ablations, budget, metrics, scenarios
+from vlc_evaluation import ablations, budget, scenarios
 
 CHECKPOINTS = (0, 1, 3, 10)
 STATIC_POINTS_M = (9.0, 5.0, 2.0)
@@ -224,25 +224,17 @@ def passes_table(results):
             figures[key] = dict(ablations.protocol_summary(static, dynamic),
                                 within_3sigma=budget.within_3sigma(dynamic), kept=kept)
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})
-    cm = metrics.cm_text
     head = ('| passes learnt | static max / mean (cm) | '
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
             + ' | dynamic poses within 3σ | misses | kept, per train: self-calibration δ, '
             'lamp refinement |')
     rows = [head, '|' + '---|' * (5 + len(speeds))]
     for n, fig in figures.items():
-        s = fig['static']
-        cells = [f'{cm(fig["dynamic"][v]["max_m"])} / {cm(fig["dynamic"][v]["mean_m"])}'
-                 if v in fig['dynamic'] else '–' for v in speeds]
-        within = fig['within_3sigma']
-        misses = s['misses'] + sum(d['misses'] for d in fig['dynamic'].values())
         kept = '; '.join(_kept_text(t, k) for t, k in sorted(fig['kept'].items()))
         label = (f'{n[0]}, {ABLATIONS[n[1]][0]}' if isinstance(n, tuple)
                  else 'first pass' if n == 0 else n)
-        rows.append(f'| {label} | {cm(s["max_m"])} / '
-                    f'{cm(s["mean_m"])} | ' + ' | '.join(cells) + ' | '
-                    + ('–' if within is None else f'{100 * within:.1f} %')
-                    + f' | {misses} | {kept} |')
+        rows.append(f'| {label} | ' + ' | '.join(budget.summary_cells(fig, speeds))
+                    + f' | {kept} |')
     return '\n'.join(rows), figures
 
 

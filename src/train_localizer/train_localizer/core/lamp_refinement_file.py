@@ -23,13 +23,11 @@ import dataclasses
 from dataclasses import dataclass, field
 import hashlib
 import math
-import os
 import pathlib
-import time
 
 import numpy as np
-import yaml
 
+from train_localizer.core.kept_file import read_mapping, write_atomically
 from train_localizer.core.lamp_refinement import Flag, KeptTriplet, Refinement
 from vlc_common.core.lamp_map import LampMap
 
@@ -92,14 +90,9 @@ def load_refinement(path, lamp_map, config=None):
     first run); RefinementFileError if it is unusable.
     """
     path = pathlib.Path(path)
-    if not path.exists():
+    data = read_mapping(path, RefinementFileError)
+    if data is None:
         return None
-    try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise RefinementFileError(f'{path}: does not parse: {exc}') from None
-    if not isinstance(data, dict):
-        raise RefinementFileError(f'{path}: not a mapping of fields')
     for name in ('line_ids', 'survey_digest', 'passes', 'triplets'):
         if name not in data:
             raise RefinementFileError(f'{path}: {name}: missing')
@@ -137,20 +130,14 @@ def _rows(triplets):
 
 def save_refinement(path, refinement, lamp_map, vehicle_id=''):
     """Write atomically (a temporary file renamed over the old one)."""
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     data = {'line_ids': line_ids(lamp_map), 'survey_digest': survey_digest(lamp_map),
             'vehicle_id': str(vehicle_id), 'passes': int(refinement.passes),
             'triplets': _rows(refinement.triplets),
             'flags': [{'uid': f.uid, 'kind': f.kind, 'reason': f.reason, 'at_pass': f.at_pass,
-                       'previous': _rows(f.previous)} for f in refinement.flags],
-            'written': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text('# Lamp-map refinement (train_localizer core/lamp_refinement.py): triplets '
-                   '[uid a, uid b, uid c, lambda, q m, sigma m, passes]\n'
-                   + yaml.safe_dump(data, sort_keys=False, default_flow_style=None),
-                   encoding='utf-8')
-    os.replace(tmp, path)
+                       'previous': _rows(f.previous)} for f in refinement.flags]}
+    write_atomically(path, data, '# Lamp-map refinement (train_localizer '
+                     'core/lamp_refinement.py): triplets [uid a, uid b, uid c, lambda, q m, '
+                     'sigma m, passes]\n', default_flow_style=None)
 
 
 @dataclass

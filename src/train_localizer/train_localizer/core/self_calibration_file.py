@@ -19,11 +19,9 @@ the file and the field); the node then runs on the calibration it was given.
 """
 from dataclasses import asdict, dataclass
 import math
-import os
 import pathlib
-import time
 
-import yaml
+from train_localizer.core.kept_file import read_mapping, write_atomically
 
 
 class SelfCalibrationFileError(ValueError):
@@ -51,14 +49,9 @@ def load_saved_calibration(path, vehicle_id):
     exist (a first run); SelfCalibrationFileError if it is unusable.
     """
     path = pathlib.Path(path)
-    if not path.exists():
+    data = read_mapping(path, SelfCalibrationFileError)
+    if data is None:
         return None
-    try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise SelfCalibrationFileError(f'{path}: does not parse: {exc}') from None
-    if not isinstance(data, dict):
-        raise SelfCalibrationFileError(f'{path}: not a mapping of fields')
     values = {}
     for name in ('vehicle_id',) + _FLOATS:
         if name not in data:
@@ -87,10 +80,4 @@ def load_saved_calibration(path, vehicle_id):
 
 def save_calibration(path, saved):
     """Write atomically (a temporary file renamed over the old one)."""
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = asdict(saved)
-    data['written'] = time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(yaml.safe_dump(data, sort_keys=False), encoding='utf-8')
-    os.replace(tmp, path)
+    write_atomically(path, asdict(saved))
