@@ -23,6 +23,32 @@ def test_installation_seed_draws_the_installation_and_seed_the_run(tmp_path):
     assert Scenario(name='d', seed=4).drawn_seed == 4
 
 
+def test_uncorrected_calibration_tells_the_receivers_the_raw_images_are_rectified(tmp_path):
+    """The undistortion ablation: the same drawn calibration, distortion and
+    rectification dropped, which the spot locator then takes as a rectified pair.
+    """
+    from spot_locator.conversions import stereo_geometry
+    from vlc_evaluation.localizer_replay import camera_info_messages
+
+    def infos(name):
+        folder = tmp_path / f'{name}.installation' / 'belief'
+        return camera_info_messages([folder / 'left.yaml', folder / 'right.yaml'])
+    drawn = Scenario(name='drawn', seed=3, rig_profile='realistic')
+    plain = Scenario(name='plain', seed=3, rig_profile='realistic', calibration='uncorrected')
+    for s in (drawn, plain):
+        write_installation(s, tmp_path)
+    raw, rectified = stereo_geometry(*infos('drawn')), stereo_geometry(*infos('plain'))
+    assert raw.raw_cameras is not None and rectified.raw_cameras is None
+    # the same rectified projection and baseline
+    assert (rectified.fx, rectified.cx, rectified.baseline_m) == pytest.approx(
+        (raw.fx, raw.cx, raw.baseline_m))
+    with pytest.raises(ValueError, match='uncorrected'):
+        write_installation(Scenario(name='x', seed=3, rig_profile='realistic',
+                                    calibration='undistorted'), tmp_path)
+    ablated = passes.ABLATIONS['no_undistortion']
+    assert ablated[2] == {'calibration': 'uncorrected'}
+
+
 def test_rig_nodes_draw_the_installation_from_installation_seed():
     from vlc_stereo_camera.rig_params import ScenarioConfig
     base = dict(epoch_s=0.0, motion_profile='constant', start_chainage_m=0.0,

@@ -174,10 +174,13 @@ def main(argv=None):
                         help='rig profile of every rig scenario (ideal, realistic, harsh; '
                              'config/rig_profiles.yaml): a drawn installation per seed, '
                              'written beside each bag')
-    parser.add_argument('--calibration', choices=('drawn', 'checkerboard'), default='drawn',
+    parser.add_argument('--calibration', choices=('drawn', 'checkerboard', 'uncorrected'),
+                        default='drawn',
                         help="a drawn profile's belief calibration: drawn (the truth "
-                             'perturbed by a calibration\'s errors) or checkerboard (an '
-                             'actual calibration of the true lenses, ~10 s per scenario)')
+                             'perturbed by a calibration\'s errors), checkerboard (an '
+                             'actual calibration of the true lenses, ~10 s per scenario) or '
+                             'uncorrected (drawn, distortion and rectification dropped: the '
+                             'receivers take the raw images as rectified)')
     parser.add_argument('--profile-docs', nargs='+', default=[],
                         help='a drawn --rig-profile: also write its summary beside the main '
                              "evaluation's (docs/evaluation/report.json) and the paper's "
@@ -210,7 +213,7 @@ def main(argv=None):
                              'e.g. use_self_calibration:=true')
     parser.add_argument('--passes-ablations', action='store_true',
                         help='multi-pass: at the last checkpoint also score with each of '
-                             + ', '.join(d for d, _ in passes.ABLATIONS.values()))
+                             + ', '.join(d for d, *_ in passes.ABLATIONS.values()))
     parser.add_argument('--passes-docs', nargs='+', default=[],
                         help='multi-pass: also write its table between the passes markers of '
                              'these Markdown files')

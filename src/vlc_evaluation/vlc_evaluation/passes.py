@@ -24,8 +24,9 @@ checkpoint n found them in ``after<n>/kept/``, and each scored run's own copy in
 ``after<n>/files/<run>/``.
 
 *Ablations* (``ablations``): at the last checkpoint the scored runs are run again once
-per variant, each with one localizer switch turned (:data:`ABLATIONS`: the refinement
-off, the self-calibration turned the other way), reading the same kept files, in
+per variant, each with one switch turned (:data:`ABLATIONS`: undistortion and
+rectification off, the refinement off, the self-calibration turned the other way),
+reading the same kept files, in
 ``after<n>/<variant>/``.
 """
 import json
@@ -46,13 +47,18 @@ SELF_CALIBRATION_FILE = 'self_calibration.yaml'
 LAMP_REFINEMENT_FILE = 'lamp_refinement.yaml'
 BEGIN_MARK, END_MARK = '<!-- passes:begin -->', '<!-- passes:end -->'
 LOCALIZER = 'train_localizer_node'
-#: name -> (what it turns, localizer parameters on top of the run's, given the run's)
+#: name -> (what it turns, localizer parameters on top of the run's given the run's,
+#: Scenario fields)
 ABLATIONS = {
+    'no_undistortion': ('undistortion and rectification off (the receivers take the raw '
+                        'images as rectified)', lambda given: {},
+                        {'calibration': 'uncorrected'}),
     'no_refinement': ('lamp-map refinement off',
-                      lambda given: {'lamp_refinement_path': ''}),
+                      lambda given: {'lamp_refinement_path': ''}, {}),
     'self_calibration_turned': (
         'self-calibration turned the other way',
-        lambda given: {'use_self_calibration': not given.get('use_self_calibration', False)}),
+        lambda given: {'use_self_calibration': not given.get('use_self_calibration', False)},
+        {}),
 }
 
 
@@ -166,16 +172,19 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
                 shutil.rmtree(kept, ignore_errors=True)
                 shutil.copytree(base / 'kept', kept)
                 results[int(t)][k] = {'kept': kept_state(kept)}
-                variants = [('', dict(localizer_params or {}))] + [
-                    (name, dict(localizer_params or {},
-                                **ABLATIONS[name][1](dict(localizer_params or {}))))
+                given = dict(localizer_params or {})
+                variants = [('', given, {})] + [
+                    (name, dict(given, **ABLATIONS[name][1](given)), ABLATIONS[name][2])
                     for name in (ablations if k == checkpoints[-1] else ())]
-                for name, params in variants:
+                for name, params, fields in variants:
                     where = base / f'after{k:02d}' / name
                     static, dynamic = scored_runs(t, where / 'files', profile, points_m,
                                                   speeds_kmh, localizer_params=params,
                                                   realtime_factor=realtime_factor,
                                                   kept_dir=kept)
+                    for scenario in static + dynamic:
+                        for field, value in fields.items():
+                            setattr(scenario, field, value)
                     group = f'{GROUP_PREFIX}train{t}/after{k:02d}/' + (f'{name}/' if name else '')
                     groups[group + 'static'] = static
                     groups[group + 'dynamic'] = dynamic

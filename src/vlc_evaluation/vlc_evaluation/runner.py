@@ -188,7 +188,10 @@ def write_installation(scenario, out_dir):
     profile, the seed and every drawn value for the evaluation. Returns
     ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``.
     With ``scenario.calibration`` ``checkerboard`` the belief calibration is replaced by
-    an actual checkerboard calibration of the true lenses (``calibrate_installation``).
+    an actual checkerboard calibration of the true lenses (``calibrate_installation``);
+    with ``uncorrected`` its distortion and rectification are dropped (D = 0, R = I,
+    K = P[:, :3]: the receivers take the raw images as rectified — the ablation of
+    undistortion and rectification).
     """
     if scenario.rig_profile == 'ideal':
         return {}
@@ -204,11 +207,31 @@ def write_installation(scenario, out_dir):
     if scenario.calibration == 'checkerboard':
         from vlc_evaluation.installation_calibration import calibrate_installation
         calibrate_installation(folder)
+    elif scenario.calibration == 'uncorrected':
+        for side in ('left', 'right'):
+            drop_distortion(folder / 'belief' / f'{side}.yaml')
     elif scenario.calibration != 'drawn':
         raise ValueError(f'scenario {scenario.name}: calibration {scenario.calibration!r} is '
-                         'not drawn or checkerboard')
+                         'not drawn, checkerboard or uncorrected')
     return {'vehicle_path': paths['belief/vehicle.yaml'],
             'lamp_map_path': paths['belief/lamp_map.yaml']}
+
+
+def drop_distortion(path):
+    """Rewrite a camera_info_manager YAML file as a rectified camera's: D = 0, R = I,
+    K = P[:, :3] (the projection and the baseline kept).
+    """
+    import yaml
+    path = pathlib.Path(path)
+    data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    P = data['projection_matrix']['data']
+    data['camera_matrix']['data'] = [float(v) for v in P[0:3] + P[4:7] + P[8:11]]
+    data['distortion_coefficients']['data'] = [0.0] * len(
+        data['distortion_coefficients']['data'])
+    data['rectification_matrix']['data'] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    path.write_text('# Distortion and rectification dropped (calibration: uncorrected)\n'
+                    + yaml.safe_dump(data, sort_keys=False, default_flow_style=None),
+                    encoding='utf-8')
 
 
 def _rig_lamp_map_path(scenario):
@@ -306,7 +329,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
             # while the other nodes start, and holds simulated time until the decoder,
             # the spot locator, the probe's gate (, the recorder) subscribe to its images.
             camera = {}
-            if belief and scenario.calibration == 'checkerboard':
+            if belief and scenario.calibration in ('checkerboard', 'uncorrected'):
                 belief_dir = pathlib.Path(belief['vehicle_path']).parent
                 camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
                                                str(belief_dir / 'right.yaml')]

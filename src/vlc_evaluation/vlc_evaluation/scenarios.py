@@ -71,7 +71,9 @@ class Scenario:
     ``calibration`` ``drawn`` (the installation's calibration: the truth perturbed by a
     calibration's errors) or ``checkerboard`` (an actual ``stereo_calibrate`` of boards
     rendered through the true lenses, ``calibrate_installation``; the camera node then
-    publishes it through ``calibration_paths``). ``installation_seed`` (0 = ``seed``)
+    publishes it through ``calibration_paths``) or ``uncorrected`` (the drawn one with
+    its distortion and rectification dropped: the undistortion ablation, published the
+    same way). ``installation_seed`` (0 = ``seed``)
     draws the installation, ``seed`` the run (sensor noise, platform motion, IMU biases):
     the multi-pass protocol runs one train on one line again and again (:mod:`.passes`).
     ``files_from`` / ``files_to``: before every attempt ``files_to`` is emptied and the
