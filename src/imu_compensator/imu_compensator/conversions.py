@@ -21,6 +21,20 @@ def imu_sample(msg):
             np.array([la.x, la.y, la.z]))
 
 
+def odometry_speed(msg):
+    """(t_s, speed m/s, its variance or None) of a nav_msgs/Odometry.
+
+    The speed is the magnitude of ``twist.twist.linear`` (train_localizer: the
+    along-track speed rotated into ``base_link``); its variance ``twist.covariance[0]``,
+    None when not positive (not stated). Values are not checked here (see
+    :meth:`~imu_compensator.core.compensator.AttitudeCompensator.odometry`).
+    """
+    v = msg.twist.twist.linear
+    speed = math.sqrt(float(v.x) ** 2 + float(v.y) ** 2 + float(v.z) ** 2)
+    var = float(msg.twist.covariance[0])
+    return stamp_to_s(msg.header.stamp), speed, (var if not var <= 0.0 else None)
+
+
 def imu_attitude(msg):
     """(t_s, quat_xyzw (4,), covariance (3, 3) rad² or None) of an ``imu/data`` message.
 

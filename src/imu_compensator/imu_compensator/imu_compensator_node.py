@@ -13,6 +13,13 @@ Subscriptions
     (``heading_aiding_std_rad`` when that is not positive either), e.g. a heading
     from another source. An aid inconsistent with the estimate (Mahalanobis gate) is
     rejected, counted and warned about; see :mod:`imu_compensator.core.compensator`.
+``train/odometry`` (nav_msgs/Odometry, reliable, depth 10; train_localizer's)
+    Optional: the magnitude of ``twist.twist.linear`` (the along-track speed) at the
+    header stamp, with its variance ``twist.covariance[0]``. While it is recent
+    (``odometry_timeout_s``) and shows the train accelerating (``odometry_max_accel_mps2``)
+    or moving (``odometry_max_speed_mps``, off by default), the IMU's standstill verdict
+    is vetoed; without it the IMU decides alone. A non-finite message is ignored with a
+    throttled warning.
 
 Publications
 ------------
@@ -26,7 +33,8 @@ Publications
 ``diagnostics`` (diagnostic_msgs/DiagnosticArray, reliable, depth 10)
     Every ``diagnostics_period_s`` (wall clock): gyro bias and its 1σ, zero-velocity
     state, measured sample rate, accepted / dropped / gap / reset counts, aiding counts
-    (used, rejected, inconsistent, resets, re-initialisations), attitude.
+    (used, rejected, inconsistent, resets, re-initialisations), standstill vetoes and
+    odometry counts, attitude.
 
 Bad input (non-finite values, duplicate or out-of-order stamps, a time jump backwards,
 gaps) is counted, warned about (throttled) and skipped or handled as described in
@@ -44,6 +52,7 @@ import sys
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
 import numpy as np
 from rcl_interfaces.msg import ParameterType
 from rclpy.clock import Clock, ClockType
@@ -51,7 +60,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
-from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample
+from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample, odometry_speed
 from imu_compensator.core.attitude_filter import AttitudeFilterConfig
 from imu_compensator.core.compensator import (
     AidingStatus,
@@ -59,7 +68,7 @@ from imu_compensator.core.compensator import (
     CompensatorConfig,
     SampleStatus,
 )
-from imu_compensator.core.zero_velocity import ZeroVelocityConfig
+from imu_compensator.core.zero_velocity import OdometryVeto, OdometryVetoConfig, ZeroVelocityConfig
 from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.core.vehicle import load_vehicle
@@ -78,6 +87,7 @@ _STRING = ParameterType.PARAMETER_STRING
 
 _F = AttitudeFilterConfig()
 _Z = ZeroVelocityConfig()
+_O = OdometryVetoConfig()
 _C = CompensatorConfig()
 
 #: (name, default, descriptor); documented key by key in config/imu_compensator_node.yaml.
@@ -148,6 +158,21 @@ NODE_PARAMETERS = (
     ('zero_velocity_max_rate_rps', _Z.max_rate_rps,
      _desc('Standstill (once the bias is known): window mean rate within this of the bias '
            'on every axis, rad/s.', 1e-6, 1.0)),
+    ('odometry_timeout_s', _O.timeout_s,
+     _desc('train/odometry vetoes standstill only for IMU samples stamped within this of '
+           'its newest usable message, s.', 1e-3, 60.0)),
+    ('odometry_accel_window_s', _O.accel_window_s,
+     _desc('The acceleration is the least-squares slope of the odometry speed over this '
+           'much of its newest stamps, s.', 0.05, 60.0)),
+    ('odometry_max_accel_mps2', _O.max_accel_mps2,
+     _desc('Standstill is vetoed while that acceleration exceeds this in magnitude, '
+           'm/s^2; 0 = off.', 0.0, 10.0)),
+    ('odometry_max_speed_mps', _O.max_speed_mps,
+     _desc('Standstill is vetoed while the odometry speed exceeds this, m/s; 0 = off.',
+           0.0, 100.0)),
+    ('odometry_max_speed_std_mps', _O.max_speed_std_mps,
+     _desc('Odometry whose speed 1 sigma exceeds this carries no usable speed, m/s.',
+           1e-4, 100.0)),
     ('gap_s', _C.gap_s, _desc('A step longer than this is a gap (warned, propagated), s.',
                               1e-4, 60.0)),
     ('backward_reset_s', _C.backward_reset_s,
@@ -249,7 +274,12 @@ def read_config(node):
                             gyro_std_threshold_rps=v['zero_velocity_gyro_std_rps'],
                             accel_std_threshold_mps2=v['zero_velocity_accel_std_mps2'],
                             max_rate_rps=v['zero_velocity_max_rate_rps'])
-    comp = CompensatorConfig(filter=filt, zero_velocity=zv,
+    odo = OdometryVetoConfig(timeout_s=v['odometry_timeout_s'],
+                             accel_window_s=v['odometry_accel_window_s'],
+                             max_accel_mps2=v['odometry_max_accel_mps2'],
+                             max_speed_mps=v['odometry_max_speed_mps'],
+                             max_speed_std_mps=v['odometry_max_speed_std_mps'])
+    comp = CompensatorConfig(filter=filt, zero_velocity=zv, odometry=odo,
                              nominal_rate_hz=v['nominal_rate_hz'], gap_s=v['gap_s'],
                              backward_reset_s=v['backward_reset_s'],
                              imu_mount_rpy_rad=tuple(
@@ -305,6 +335,7 @@ class ImuCompensatorNode(Node):
             self.create_subscription(Imu, 'imu/data_raw', self._on_imu, IMU_QOS)
         self.create_subscription(PoseWithCovarianceStamped, 'attitude_aiding',
                                  self._on_attitude_aiding, 10)
+        self.create_subscription(Odometry, 'train/odometry', self._on_odometry, 10)
         self.create_timer(cfg.diagnostics_period_s, self._publish_diagnostics)
         self.get_logger().info(
             f'attitude of {cfg.base_frame_id} from {self.resolve_topic_name("imu/data_raw")} at '
@@ -374,6 +405,19 @@ class ImuCompensatorNode(Node):
             self._warnings.warn('out_of_order', lambda: f'out-of-order IMU sample '
                                 f'({result.dt_s * 1e3:.1f} ms before the newest) skipped')
 
+    def _on_odometry(self, msg):
+        try:
+            t_s, speed, var = odometry_speed(msg)
+            status = self.compensator.odometry(t_s, speed, var)
+        except (TypeError, ValueError, OverflowError) as exc:   # never stop the node
+            status, t_s = f'invalid ({exc})', float('nan')
+        if status == OdometryVeto.OUT_OF_ORDER:
+            self._warnings.warn('odometry_order', lambda: f'train/odometry at t = {t_s:.6f} s '
+                                'not newer than the newest: ignored')
+        elif status not in (OdometryVeto.USED, OdometryVeto.UNCERTAIN):
+            self._warnings.warn('odometry_invalid', 'train/odometry with a non-finite stamp '
+                                'or speed ignored')
+
     def _on_attitude_aiding(self, msg):
         result, t_s = fuse_aiding(self.compensator, msg, self.config.heading_aiding_std_rad)
         status = result.status
@@ -439,6 +483,10 @@ class ImuCompensatorNode(Node):
             'gyro_bias_std_deg_h': ' '.join(f'{b / DEG * 3600.0:.2f}' for b in bias_std),
             'zero_velocity': str(comp.stationary).lower(),
             'stationary_samples': str(stats.stationary_samples),
+            'standstill_vetoed': str(stats.standstill_vetoed),
+            'odometry_used': str(stats.odometry_used),
+            'odometry_rejected': str(stats.odometry_rejected),
+            'odometry_accel_mps2': f'{comp.odometry_veto.acceleration_mps2:.3f}',
             'sample_rate_hz': f'{rate:.1f}',
             'samples_accepted': str(stats.accepted),
             'samples_dropped': str(dropped),

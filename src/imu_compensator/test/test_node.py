@@ -8,6 +8,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
 import numpy as np
 import pytest
 import rclpy
@@ -234,6 +235,56 @@ def test_inconsistent_aiding_is_rejected_counted_and_reported(ctx):
         values = {kv.key: kv.value for kv in h.diags[-1].status[0].values}
         for key in ('attitude_aiding_resets', 'attitude_aiding_reinitialisations'):
             assert values[key] == '0'
+    finally:
+        h.close()
+
+
+def odometry(stamp_ns, speed, var=1e-4):
+    msg = Odometry()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)
+    msg.header.frame_id, msg.child_frame_id = 'map', 'base_link'
+    msg.twist.twist.linear.x = float(speed)
+    cov = [0.0] * 36
+    cov[0] = var
+    msg.twist.covariance = cov
+    return msg
+
+
+def test_odometry_vetoes_the_standstill_of_an_accelerating_train_and_bad_ones_are_ignored(ctx):
+    """A steady 0.5 m/s^2 without vibration: the IMU alone finds it still; train/odometry
+    showing the acceleration vetoes that for the samples within odometry_timeout_s of it.
+    A non-finite speed and a raw fix's unknown speed (variance 1e6) are not used.
+    """
+    h = Harness(ctx)
+    try:
+        odo_pub = h.probe.create_publisher(Odometry, 'train/odometry', 10)
+        deadline = time.monotonic() + 5.0
+        while odo_pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            h.executor.spin_once(timeout_sec=0.02)
+        s = h.node.compensator.stats
+        # speeds stamped 0 ... 1.2 s, newest at 1.2 s: IMU samples after 0.7 s are vetoed
+        msgs = [odometry(EPOCH_NS + k * 20_000_000, 0.5 * 0.02 * k) for k in range(61)] + [
+            odometry(EPOCH_NS + 1_300_000_000, math.nan),
+            odometry(EPOCH_NS + 1_300_000_000, 5.0, var=1e6)]
+        for n, msg in enumerate(msgs):         # depth 10: one at a time
+            odo_pub.publish(msg)
+            want = min(n + 1, 62)
+            h.spin_until(lambda want=want: s.odometry_used + s.odometry_rejected >= want, 1.0)
+        assert h.spin_until(lambda: s.odometry_used + s.odometry_rejected >= 62)
+        assert (s.odometry_used, s.odometry_rejected) == (61, 1)
+        assert h.node.compensator.odometry_veto.acceleration_mps2 == pytest.approx(0.5)
+        h.send([raw(EPOCH_NS + k * PERIOD_NS, accel=(0.5, 0.0, 9.80665)) for k in range(400)])
+        assert h.spin_until(lambda: len(h.out) >= 400)
+        # window full at sample 200 (0.5 s): still until 0.7 s (280), vetoed after
+        assert s.stationary_samples == pytest.approx(80, abs=2)
+        assert s.standstill_vetoed == pytest.approx(120, abs=2)
+
+        def reported(d):
+            values = {kv.key: kv.value for kv in d.status[0].values}
+            return values.get('standstill_vetoed') == str(s.standstill_vetoed) \
+                and values.get('odometry_rejected') == '1' \
+                and values.get('zero_velocity') == 'false'
+        assert h.spin_until(lambda: any(reported(d) for d in h.diags))
     finally:
         h.close()
 

@@ -16,6 +16,12 @@ After a start or reset, if the first full standstill window is still, the filter
 restarts from the track attitude with the window's mean rate as gyro bias (static
 alignment, as an INS does before departure).
 
+The train's speed (:meth:`AttitudeCompensator.odometry`, the localizer's
+``train/odometry``) can overrule a standstill verdict: while recent odometry shows the
+train accelerating or braking (or, optionally, moving), a sample the IMU's variance test
+finds still is not taken for standstill (:class:`~.zero_velocity.OdometryVeto`). Without
+recent odometry the IMU alone decides, as before.
+
 External attitude and heading aids (the lamps') are measurements of the attitude at
 their own stamp, which is usually older than the newest sample and may be older than
 corrections made meanwhile (the aids before it, the pulls). Each is compared with the
@@ -44,7 +50,12 @@ import math
 import numpy as np
 
 from imu_compensator.core.attitude_filter import N_STATES, AttitudeFilter, AttitudeFilterConfig
-from imu_compensator.core.zero_velocity import ZeroVelocityConfig, ZeroVelocityDetector
+from imu_compensator.core.zero_velocity import (
+    OdometryVeto,
+    OdometryVetoConfig,
+    ZeroVelocityConfig,
+    ZeroVelocityDetector,
+)
 from vlc_common.core.rotations import (
     quat_conjugate,
     quat_from_rotvec,
@@ -281,6 +292,9 @@ class CompensatorConfig:
     ----------
     filter : AttitudeFilterConfig
     zero_velocity : ZeroVelocityConfig
+    odometry : OdometryVetoConfig
+        When recent odometry (:meth:`AttitudeCompensator.odometry`) overrules the
+        IMU's standstill verdict.
     nominal_rate_hz : float
         Expected IMU rate, Hz (sizes the standstill window and the zero-rate noise).
     gap_s : float
@@ -308,6 +322,7 @@ class CompensatorConfig:
 
     filter: AttitudeFilterConfig = field(default_factory=AttitudeFilterConfig)
     zero_velocity: ZeroVelocityConfig = field(default_factory=ZeroVelocityConfig)
+    odometry: OdometryVetoConfig = field(default_factory=OdometryVetoConfig)
     nominal_rate_hz: float = 400.0
     gap_s: float = 0.02
     backward_reset_s: float = 1.0
@@ -377,6 +392,9 @@ class CompensatorStats:
     gaps: int = 0
     resets: int = 0
     stationary_samples: int = 0
+    standstill_vetoed: int = 0       # still to the IMU, moving to the odometry
+    odometry_used: int = 0
+    odometry_rejected: int = 0       # not finite, or out of order
     aiding_used: int = 0             # applied: linear update, reset or re-initialisation
     aiding_rejected: int = 0         # not applied, for any reason
     aiding_inconsistent: int = 0     # of those: failed the gate
@@ -406,6 +424,7 @@ class AttitudeCompensator:
         # aid stamped there has nothing to be compared with.
         self.history = AidingHistory(horizon_s=self.config.history_s,
                                      max_gap_s=self.config.gap_s)
+        self.odometry_veto = OdometryVeto(self.config.odometry)
         self.stats = CompensatorStats()
         self.last_t_s = None
         self._rate_scale_rps = np.zeros(3)
@@ -479,6 +498,11 @@ class AttitudeCompensator:
         known = self.filter.gyro_bias_std_rps.max() < self._bias_known_rps
         stationary = self.zero_velocity.push(gyro, accel,
                                              self.filter.gyro_bias_rps if known else None)
+        if stationary and self.odometry_veto.vetoes(t_s):
+            # Still to the IMU, but the odometry sees the train accelerating (or moving):
+            # no hold, no zero-rate update, no standstill gravity, no static alignment.
+            stationary = self.zero_velocity.stationary = False
+            self.stats.standstill_vetoed += 1
         self._since_rate_hold += 1
         if self._since_rate_hold >= _RATE_HOLD_EVERY:
             self._hold_rate_scale(t_s)
@@ -543,6 +567,30 @@ class AttitudeCompensator:
         self.history.push(t_s, quat.tolist(), f._correction_q, *f.lag_integrals())
         return SampleResult(status, t_s, dt, quat, cov, f.corrected_rate(gyro),
                             accel, stationary)
+
+    # ------------------------------------------------------------------ odometry
+    def odometry(self, t_s, speed_mps, speed_var_m2ps2=None):
+        """Feed the train's speed (the localizer's ``train/odometry``) at its stamp.
+
+        While the newest usable speed is within ``odometry.timeout_s`` of an IMU sample
+        and shows the train accelerating (or moving, when ``max_speed_mps`` is set), that
+        sample is not taken for standstill, whatever the IMU's variance test says.
+        Without recent odometry nothing changes.
+
+        Returns
+        -------
+        str
+            What :meth:`~imu_compensator.core.zero_velocity.OdometryVeto.push` did:
+            ``'used'``, ``'uncertain'`` (speed σ too large: not used, not counted as
+            rejected), ``'out_of_order'`` or ``'invalid'`` (non-finite; both counted in
+            ``stats.odometry_rejected``).
+        """
+        status = self.odometry_veto.push(t_s, speed_mps, speed_var_m2ps2)
+        if status == OdometryVeto.USED:
+            self.stats.odometry_used += 1
+        elif status != OdometryVeto.UNCERTAIN:
+            self.stats.odometry_rejected += 1
+        return status
 
     # ------------------------------------------------------------------ aiding
     def heading_aiding(self, t_s, yaw_rad, variance_rad2):
