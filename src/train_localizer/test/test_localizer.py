@@ -429,3 +429,28 @@ def test_curved_alignment_through_transition_and_curve(speed_kmh):
     assert np.mean(np.array(d2) <= 14.16) >= 0.997          # χ²(3) at 99.73 %
     along = np.array([p.chainage_m for p in poses]) - truth.chainage_m
     assert np.max(np.abs(along)) < 0.06
+
+
+@pytest.mark.parametrize('gate_chi2, holds', [(16.0, False), (float('inf'), True)])
+def test_a_departure_is_not_held_at_standstill(gate_chi2, holds):
+    """A train pulling away on a smooth track: a steady 1 m/s² adds no variance to the
+    standstill window, so the IMU test still finds it standing. The zero-velocity
+    updates' χ² gate lets it go; without the gate (``inf``) the updates hold it at zero
+    speed while the bias takes the traction, metres behind at many σ.
+    """
+    from train_localizer.core.standstill import StandstillConfig
+    from vlc_stereo_camera.core.trajectory import VibrationConfig
+    profile = MotionProfile('accel_cruise_brake', start_chainage_m=93.0,
+                            speed_mps=20.0 / 3.6, accel_mps2=1.0, dwell_s=2.0, cruise_s=2.0)
+    traj = Trajectory(profile, Vibration(VibrationConfig(enabled=False), seed=6))
+    sim = SensorSimulator(traj, RIG, LAMPS, SensorErrors(), np.random.default_rng(6))
+    poses, _, _ = feed(make(standstill=StandstillConfig(gate_chi2=gate_chi2)),
+                       event_stream(sim, 0.0, 9.0))
+    err, sigma, t = errors_of(poses, traj)
+    worst = np.max(np.abs(err[:, 0]))
+    if holds:
+        assert worst > 1.0                       # the hazard this gate is for
+    else:
+        assert worst < 0.3
+        assert np.all(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0])
+        assert abs(poses[-1].speed_mps - traj.sample([t[-1]]).speed_mps[0]) < 0.1

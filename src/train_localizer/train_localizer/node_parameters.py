@@ -66,6 +66,9 @@ STANDSTILL_PARAMETERS = (
                                                '(+2 sigma), m/s.', 0.0, 10.0)),
     ('zero_velocity_sigma_mps', 0.01, _desc('1-sigma of a zero-velocity update, m/s.',
                                             1e-6, 10.0)),
+    ('zero_velocity_gate_chi2', 16.0, _desc('A zero-velocity update whose innovation (the '
+                                            'speed against zero) exceeds this chi2 is refused: '
+                                            'the train has started.', 1.0, 1e9)),
 )
 
 #: Joining spots/pairs and vlc/lamps of one frame.
@@ -115,7 +118,7 @@ def standstill_config(p):
         gyro_std_max_rps=p['standstill_gyro_std_max_rps'],
         accel_std_max_mps2=p['standstill_accel_std_max_mps2'],
         max_speed_mps=p['zero_velocity_max_speed_mps'],
-        speed_sigma_mps=p['zero_velocity_sigma_mps'])
+        speed_sigma_mps=p['zero_velocity_sigma_mps'], gate_chi2=p['zero_velocity_gate_chi2'])
 
 
 def join_config(p, **extra):

@@ -37,6 +37,12 @@ class StandstillConfig:
         1σ of one zero-velocity pseudo-measurement, m/s.
     update_period_s : float
         At most one update per this period (they are not independent), s.
+    gate_chi2 : float
+        An update whose innovation (the filter's speed against zero) exceeds this χ²
+        (1 dof) is refused: the train has started. Without it a departure on a smooth
+        track — a steady acceleration adds no variance to the window — was held at zero
+        speed update after update while the bias took the traction: metres behind,
+        at up to 40σ (realistic rig, 1 m/s² to 20 km/h).
     """
 
     enabled: bool = True
@@ -47,6 +53,7 @@ class StandstillConfig:
     max_speed_sigma_mps: float = 0.5
     speed_sigma_mps: float = 0.01
     update_period_s: float = 0.1
+    gate_chi2: float = 16.0
 
 
 class StandstillDetector:
@@ -74,7 +81,12 @@ class StandstillDetector:
 
     @staticmethod
     def speed_allows_update(speed_mps, speed_var, config):
-        """True when the filter's speed is compatible with standing still."""
-        sigma = math.sqrt(max(speed_var, 0.0))
-        return sigma <= config.max_speed_sigma_mps and abs(speed_mps) <= (
-            config.max_speed_mps + 2.0 * sigma)
+        """True when the filter's speed is compatible with standing still: known well
+        enough, near zero, and a zero-speed measurement would pass the χ² gate.
+        """
+        var = max(speed_var, 0.0)
+        sigma = math.sqrt(var)
+        innovation_var = var + config.speed_sigma_mps ** 2
+        return (sigma <= config.max_speed_sigma_mps
+                and abs(speed_mps) <= config.max_speed_mps + 2.0 * sigma
+                and speed_mps * speed_mps <= config.gate_chi2 * innovation_var)
