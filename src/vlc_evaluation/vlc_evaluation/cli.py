@@ -21,7 +21,16 @@ import sys
 import time
 
 from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
-from vlc_evaluation import ablations, budget, companions, faults, passes, report, scenarios
+from vlc_evaluation import (
+    ablations,
+    budget,
+    companions,
+    departures,
+    faults,
+    passes,
+    report,
+    scenarios,
+)
 from vlc_evaluation.graph_runner import SPAWN_MODES
 from vlc_evaluation.sample_bag import record_sample_bag, sample_scenario
 
@@ -198,6 +207,16 @@ def main(argv=None):
     parser.add_argument('--budget-docs', nargs='+', default=[],
                         help='budget: also write its table between the budget markers of '
                              'these Markdown files')
+    parser.add_argument('--departures', type=int, default=0, metavar='N',
+                        help='also run the departure protocol (evaluation/departures.py): '
+                             'stand, pull away, cruise, brake, stand, on N seeds from '
+                             '--first-seed, with the defaults and with the zero-velocity gate '
+                             'off')
+    parser.add_argument('--departures-profile', default='realistic',
+                        help='departures: the rig profile')
+    parser.add_argument('--departures-docs', nargs='+', default=[],
+                        help='departures: also write its table between the departures '
+                             'markers of these Markdown files')
     parser.add_argument('--passes', type=int, default=0,
                         help='also run the multi-pass protocol (evaluation/passes.py): this '
                              'many learning passes per train, scored runs at the checkpoints')
@@ -288,6 +307,12 @@ def main(argv=None):
             args.budget_profile, trials=args.budget_trials, runs=args.budget_runs,
             observe_s=args.observe_s, realtime_factor=args.realtime_factor,
             first_seed=args.first_seed))
+    if args.departures:
+        if args.departures_profile != 'ideal':
+            check_profile(args.departures_profile)
+        groups.update(departures.departure_groups(
+            range(args.first_seed, args.first_seed + args.departures),
+            args.departures_profile, realtime_factor=args.realtime_factor))
     total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
 
@@ -360,6 +385,17 @@ def main(argv=None):
         for path in args.budget_docs:
             budget.update_docs(path, table, figures, command)
             print(f'{path}: budget section rewritten')
+    if args.departures:
+        found = {k: v for k, v in results.items() if k.startswith(departures.GROUP_PREFIX)}
+        table, _ = departures.departures_table(found)
+        text_d = f'{departures.describe(found, args.departures_profile)}\n\n{table}'
+        added = f'\n## Departures and stops\n\n{text_d}\n'
+        with open(out / 'report.md', 'a', encoding='utf-8') as stream:
+            stream.write(added)
+        text += added
+        for path in args.departures_docs:
+            departures.update_docs(path, text_d, command)
+            print(f'{path}: departures section rewritten')
     if kinds:
         added = companions.append_to_report(out, results.get('companions', ()),
                                             results.get('outage', ()), results.get('forged', ()))

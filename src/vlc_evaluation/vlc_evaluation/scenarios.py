@@ -303,7 +303,10 @@ def score_scenario(bag, scenario, lamp_map):
         result['scenario'] = asdict(scenario)
         return result
     run = bag_eval.load_run(bag)
-    if scenario.kind:
+    if scenario.kind == 'departure':
+        from vlc_evaluation import departures
+        result = departures.score_departure(run, scenario)
+    elif scenario.kind:
         from vlc_evaluation import companions
         result = companions.score_kind(run, scenario)
     elif scenario.is_replay:
