@@ -408,6 +408,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
 
     def _report_refinement(self):
         kept = self.localizer_config.refinement_kept
+        # moved lamps already logged (at start from the file, then as passes find them)
+        self._flags_reported = ({f.uid for f in kept.base.flags}
+                                if kept is not None and kept.base is not None else set())
         if kept is None:
             return
         if kept.refused:
@@ -420,7 +423,6 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                                    'placed where the passes put it; re-survey it')
         for flag in kept.base.flags if kept.base is not None else ():
             self.get_logger().warn(f'lamp {flag.uid:#06x} {flag.reason} (lamp refinement)')
-        self._flags_reported = {f.uid for f in kept.base.flags} if kept.base else set()
 
     def _merged_refinement(self, finish=False):
         kept, recorder = self.localizer_config.refinement_kept, self.localizer.pass_recorder
@@ -439,8 +441,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             return
         kept = self.localizer_config.refinement_kept
         for flag in merged.flags:
-            if flag.uid not in getattr(self, '_flags_reported', set()):
-                self._flags_reported = getattr(self, '_flags_reported', set()) | {flag.uid}
+            if flag.uid not in self._flags_reported:
+                self._flags_reported.add(flag.uid)
                 self.get_logger().warn(f'lamp {flag.uid:#06x} {flag.reason} (lamp refinement):'
                                        ' its earlier triplets are kept apart in the file')
         try:

@@ -35,6 +35,7 @@ import shutil
 
 import yaml
 
+from train_localizer.core.kept_file import read_mapping
 from vlc_evaluation import ablations, budget, scenarios
 
 CHECKPOINTS = (0, 1, 3, 10)
@@ -117,11 +118,11 @@ def scored_runs(train, files_dir, profile='realistic', points_m=STATIC_POINTS_M,
 
 
 def _read_yaml(path):
+    """The kept file's mapping; None when it is missing or unreadable."""
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8')) if path.exists() else None
-    except (OSError, yaml.YAMLError):
+        return read_mapping(path, ValueError)
+    except ValueError:
         return None
-    return data if isinstance(data, dict) else None
 
 
 def kept_state(files_dir):
@@ -220,16 +221,17 @@ def passes_table(results):
     checkpoints = sorted({n for r in results.values() for n in r})
     figures = {}
     for n in checkpoints:
-        variants = {n: lambda c: c}
-        variants.update({(n, name): (lambda c, name=name: c.get('ablations', {}).get(name, {}))
-                     for name in ABLATIONS
-                     if any(name in r.get(n, {}).get('ablations', {})
-                            for r in results.values())})
-        for key, pick in variants.items():
-            static = [x for r in results.values() for x in pick(r.get(n, {})).get('static', [])]
-            dynamic = [x for r in results.values()
-                       for x in pick(r.get(n, {})).get('dynamic', [])]
-            kept = {t: r[n].get('kept', {}) for t, r in results.items() if n in r}
+        cells = [r[n] for r in results.values() if n in r]
+        kept = {t: r[n].get('kept', {}) for t, r in results.items() if n in r}
+        # the checkpoint's row, then one per ablation run at it
+        variants = {n: cells}
+        variants.update({(n, name): [c['ablations'][name] for c in cells
+                                     if name in c.get('ablations', {})]
+                         for name in ABLATIONS
+                         if any(name in c.get('ablations', {}) for c in cells)})
+        for key, runs in variants.items():
+            static = [x for c in runs for x in c.get('static', [])]
+            dynamic = [x for c in runs for x in c.get('dynamic', [])]
             figures[key] = dict(ablations.protocol_summary(static, dynamic),
                                 within_3sigma=budget.within_3sigma(dynamic), kept=kept)
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})

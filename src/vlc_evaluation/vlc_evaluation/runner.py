@@ -221,17 +221,11 @@ def drop_distortion(path):
     """Rewrite a camera_info_manager YAML file as a rectified camera's: D = 0, R = I,
     K = P[:, :3] (the projection and the baseline kept).
     """
-    import yaml
-    path = pathlib.Path(path)
-    data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    P = data['projection_matrix']['data']
-    data['camera_matrix']['data'] = [float(v) for v in P[0:3] + P[4:7] + P[8:11]]
-    data['distortion_coefficients']['data'] = [0.0] * len(
-        data['distortion_coefficients']['data'])
-    data['rectification_matrix']['data'] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-    path.write_text('# Distortion and rectification dropped (calibration: uncorrected)\n'
-                    + yaml.safe_dump(data, sort_keys=False, default_flow_style=None),
-                    encoding='utf-8')
+    from vlc_common.core.calibration import read_camera_info_yaml, write_camera_info_yaml
+    from vlc_common.core.camera import CameraModel
+    camera, name, meta = read_camera_info_yaml(path)
+    write_camera_info_yaml(path, CameraModel(camera.width, camera.height, camera.P[:, :3],
+                                             P=camera.P), name, meta)
 
 
 def _rig_lamp_map_path(scenario):

@@ -14,6 +14,7 @@ What the IMU cannot tell apart: a train accelerating or braking steadily on a sm
 track at low speed (little vibration, and a constant acceleration adds no variance) —
 :class:`OdometryVeto` lets the train's measured speed overrule the verdict then.
 """
+from collections import deque
 from dataclasses import dataclass
 import math
 
@@ -221,7 +222,7 @@ class OdometryVeto:
 
     def reset(self):
         """Forget every speed."""
-        self._speeds = []                  # (t_s, speed_mps), oldest first
+        self._speeds = deque()             # (t_s, speed_mps), oldest first
         self.acceleration_mps2 = float('nan')
         self.speed_mps = float('nan')
         self.newest_t_s = None
@@ -259,7 +260,7 @@ class OdometryVeto:
         speeds.append((t_s, abs(speed)))
         window = self.config.accel_window_s
         while speeds[0][0] < t_s - window:
-            speeds.pop(0)
+            speeds.popleft()
         self.newest_t_s = t_s
         self.speed_mps = abs(speed)
         self.acceleration_mps2 = self._slope(speeds, window)

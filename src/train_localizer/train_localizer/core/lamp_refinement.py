@@ -90,8 +90,10 @@ class TripletMeasurement:
     sigma_m: float
     fixes: int = 0
 
-    def coefficients(self):
-        return (-self.lam, 1.0, self.lam - 1.0)
+
+def coefficients(lam):
+    """The triplet's h: how its q moves with each lamp's e (outer, middle, outer)."""
+    return (-lam, 1.0, lam - 1.0)
 
 
 @dataclass
@@ -212,6 +214,9 @@ class PassRecorder:
                  for k in range(3)]
         if not times[0] < times[1] < times[2]:
             return
+        lam = (times[2] - times[1]) / (times[2] - times[0])
+        if not c.lam_range[0] <= lam <= c.lam_range[1]:
+            return
         tau = t - times[1]
         A = np.column_stack([np.ones_like(t), tau, 0.5 * tau * tau, which == 1])
         H = A.T @ (w[:, None] * A)
@@ -225,11 +230,8 @@ class PassRecorder:
         scale = max(1.0, math.sqrt(float(np.sum(w * res * res)) / max(t.size - 4, 1)))
         sigma = max(math.sqrt(max(cov[3, 3], 0.0)) * scale * c.sigma_inflation,
                     c.lamp_floor_m)
-        lam = (times[2] - times[1]) / (times[2] - times[0])
-        if not c.lam_range[0] <= lam <= c.lam_range[1]:
-            return
         applied = [self.applied.get(x.uid, 0.0) for x in lamps]
-        q = float(sol[3]) + applied[1] - lam * applied[0] - (1.0 - lam) * applied[2]
+        q = float(sol[3]) + float(np.dot(coefficients(lam), applied))
         if math.isfinite(q) and math.isfinite(sigma):
             self.measurements.append(TripletMeasurement(
                 tuple(x.uid for x in lamps), lam, q, sigma, int(t.size)))
@@ -363,7 +365,7 @@ class Refinement:
             t = self.triplets[key]
             diff = r.q_m - t.q_m
             var = r.sigma_m ** 2 + t.sigma_m ** 2 + self.config.speed_sigma_m ** 2
-            for uid, h in zip(key, (-t.lam, 1.0, t.lam - 1.0)):
+            for uid, h in zip(key, coefficients(t.lam)):
                 by_lamp.setdefault(uid, []).append((h, diff, var))
         out = []
         for uid, rows in by_lamp.items():
@@ -431,7 +433,7 @@ class Refinement:
                 if not all(0 <= i < m for i in idx):
                     continue
                 h = np.zeros(m)
-                h[idx] = (-t.lam, 1.0, t.lam - 1.0)
+                h[idx] = coefficients(t.lam)
                 w = 1.0 / (t.sigma_m ** 2 + c.repeatable_sigma_m ** 2)
                 H += w * np.outer(h, h)
                 g += w * t.q_m * h

@@ -156,12 +156,16 @@ class KeptRefinement:
     refused: bool = False
 
 
+def _axis_sigma(lamp, default_sigma_m):
+    """The survey's per-axis 1σ of ``lamp`` (its own, else the default on every axis)."""
+    sigma = np.asarray(lamp.position_sigma_m, float)
+    return sigma if np.all(np.isfinite(sigma)) else np.full(3, float(default_sigma_m))
+
+
 def along_track_sigma(lamp, tangent, default_sigma_m):
     """The survey's along-track 1σ of ``lamp`` (its own per-axis σ, else the default)."""
-    sigma = np.asarray(lamp.position_sigma_m, float)
-    if not np.all(np.isfinite(sigma)):
-        sigma = np.full(3, float(default_sigma_m))
-    return float(np.sqrt(np.sum((np.asarray(tangent) * sigma) ** 2)))
+    return float(np.sqrt(np.sum((np.asarray(tangent) * _axis_sigma(lamp, default_sigma_m))
+                                ** 2)))
 
 
 def refined_map(lamp_map, corrections, tangent_of, default_sigma_m):
@@ -179,10 +183,7 @@ def refined_map(lamp_map, corrections, tangent_of, default_sigma_m):
             continue
         e, s = corrections[lamp.uid]
         t = np.asarray(tangent_of(lamp), float)
-        sigma = np.asarray(lamp.position_sigma_m, float)
-        if not np.all(np.isfinite(sigma)):
-            sigma = np.full(3, float(default_sigma_m))
-        var = sigma ** 2 * (1.0 - t * t) + (t * t) * s * s
+        var = _axis_sigma(lamp, default_sigma_m) ** 2 * (1.0 - t * t) + (t * t) * s * s
         lamps.append(dataclasses.replace(lamp, position_m=lamp.position_m - e * t,
                                          position_sigma_m=np.sqrt(var)))
     return LampMap(lamps, frame_id=lamp_map.frame_id, alignment=lamp_map.alignment)
