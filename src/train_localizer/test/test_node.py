@@ -345,6 +345,50 @@ def test_a_saved_self_calibration_is_applied_from_the_start_and_written_back(har
     assert saved['runs'] == 3 and saved['disparity_offset_px'] == 0.3
 
 
+@pytest.mark.parametrize('text,why', [
+    ('vehicle_id: [unclosed', 'does not parse'),
+    ('vehicle_id: another_train\ncamera_fx_b_px_m: 124.8\ncell_px: 64\ncells: []\n',
+     'another vehicle'),
+    ('vehicle_id: demo_train\ncamera_fx_b_px_m: 124.8\ncell_px: 64\ncells: [[1, 2]]\n',
+     'cells[0]'),
+])
+def test_a_bad_disparity_map_file_is_refused_and_left_alone(harness, tmp_path, text, why):
+    """Refused with a message naming the file and field; the node learns afresh, its
+    diagnostics say so, and the file is not overwritten (not even with what it learnt).
+    """
+    path = tmp_path / 'disparity_map.yaml'
+    path.write_text(text)
+    h = harness({'disparity_map_path': str(path)})
+    state = h.node.localizer_config.disparity_map_state
+    assert state.startswith('refused') and why in state and str(path) in state
+    assert not h.node.localizer.disparity_map.kept
+    h.node.localizer.disparity_map.add(900.0, 300.0, 0.4, 0.05, 0x1001)
+    h.node._publish_diagnostics()
+    assert h.spin_until(lambda: h.got['diag'])
+    values = {kv.key: kv.value for kv in h.got['diag'][-1].status[0].values}
+    assert values['disparity_map'].startswith('refused')
+    assert values['disparity_map_residuals_this_run'] == '1'
+    h.node.save_kept()
+    assert path.read_text() == text
+
+
+def test_a_kept_disparity_map_is_read_and_this_run_added_to_it(harness, tmp_path):
+    path = tmp_path / 'disparity_map.yaml'
+    path.write_text('vehicle_id: demo_train\ncamera_fx_b_px_m: 124.8\ncell_px: 64\nruns: 2\n'
+                    'cells: [[14, 4, 3, 40, 400.0, 0.0, 1.0e5, 160.0, 0.0, 70.0]]\n')
+    h = harness({'disparity_map_path': str(path)})
+    dm = h.node.localizer.disparity_map
+    assert h.node.localizer_config.disparity_map_state == 'from file (2 run(s), 1 cells)'
+    delta, sigma = dm.correction(14 * 64 + 32, 4 * 64 + 10)
+    assert delta == pytest.approx(0.4) and sigma >= dm.config.sigma_floor_px
+    h.node.save_disparity_map()                       # nothing learnt this run: no write
+    assert 'runs: 2' in path.read_text()
+    dm.add(14 * 64 + 32, 4 * 64 + 10, 0.5, 0.05, 0x1001)
+    h.node.save_kept()
+    saved = yaml.safe_load(path.read_text())
+    assert saved['runs'] == 3 and saved['cells'][0][:4] == [14, 4, 4, 41]
+
+
 def _shipped_map():
     from vlc_common.core.lamp_map import LampMap, default_lamp_map_path
     return LampMap.load(default_lamp_map_path())

@@ -53,6 +53,12 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from train_localizer import conversions
 from train_localizer import node_parameters as params
+from train_localizer.core.disparity_map import DisparityMapConfig
+from train_localizer.core.disparity_map_file import (
+    DisparityMapFileError,
+    load_disparity_map,
+    save_disparity_map,
+)
 from train_localizer.core.fix import FixConfig
 from train_localizer.core.imu_pacing import ImuPacer
 from train_localizer.core.integrity import IntegrityConfig, Level
@@ -144,6 +150,17 @@ PARAMETERS = (
                                         "every self_calibration_save_s; '' = none.")),
     ('self_calibration_save_s', 10.0, _desc('Steady-clock period of writing the learnt '
                                             'calibration, s.', 1.0, 3600.0)),
+    ('use_disparity_map', True, _desc('Raw images: learn the rectified pair\'s disparity '
+                                      'error cell by cell of the image from the confirmed '
+                                      'lamps\' ranges against the filter, and correct and '
+                                      'weight the fixes with it where it is known '
+                                      '(core/disparity_map.py).')),
+    ('disparity_map_path', '', _desc("File the learnt disparity map is kept in: read at start "
+                                     "(this vehicle's and calibration's only) and added to, "
+                                     "written at stop and every disparity_map_save_s; '' = "
+                                     "learnt afresh every run.")),
+    ('disparity_map_save_s', 10.0, _desc('Steady-clock period of writing the disparity map, s.',
+                                         1.0, 3600.0)),
     ('lamp_refinement_path', '', _desc("Lamp-map refinement file of the line (surveying by "
                                        "train, core/lamp_refinement.py): read at start and "
                                        "applied to the surveyed map, this run's lamp "
@@ -275,6 +292,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self.lamp_map, self.localizer_config = self.setup(p)
         self._self_cal_state, saved = self._load_self_calibration(p)
         self._report_refinement()
+        self._report_disparity_map()
         self._self_cal_runs = 1 + (saved.runs if saved is not None else 0)
         fix = self.localizer_config.fix
         self._calibration_text = (
@@ -323,6 +341,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         if self.localizer.pass_recorder is not None:
             self.create_timer(p['lamp_refinement_save_s'], self.save_lamp_refinement,
                               clock=self._steady)
+        if p['disparity_map_path'] and self.localizer.disparity_map is not None:
+            self.create_timer(p['disparity_map_save_s'], self.save_disparity_map,
+                              clock=self._steady)
         self.get_logger().info(
             f'lamp map {path} ({len(self.lamp_map)} lamps), track '
             f'{self.localizer_config.fix.track.name}; range constraint '
@@ -351,7 +372,29 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                 p['lamp_refinement_path'], lamp_map, tangent_of,
                 config.fix.lamp_position_sigma_m, config.refinement)
             config.refinement_applied = dict(config.refinement_kept.applied)
+        config.disparity_map_state = cls._load_disparity_map(p, config)
         return lamp_map, config
+
+    @staticmethod
+    def _load_disparity_map(p, config):
+        """Put the kept disparity map (``disparity_map_path``) into ``config``; returns the
+        state text for diagnostics ('off', 'learning ...', 'from file ...', 'refused: ...').
+        A refused file is left untouched and never written over.
+        """
+        if config.disparity_map is None:
+            return 'off'
+        path = p.get('disparity_map_path', '')
+        if not path:
+            return 'learning (not kept: no disparity_map_path)'
+        vehicle_id = params.load_mount(p).vehicle_id
+        try:
+            kept = load_disparity_map(path, vehicle_id, config.disparity_map.cell_px)
+        except DisparityMapFileError as exc:
+            return f'refused: {exc}'
+        if kept is None:
+            return f'learning (first run of {vehicle_id})'
+        config.disparity_map_kept, config.disparity_map_runs, config.disparity_map_kept_fx_b = kept
+        return f'from file ({config.disparity_map_runs} run(s), {len(kept[0])} cells)'
 
     def _load_self_calibration(self, p):
         """The saved self-calibration as the self-survey's prior: (state text, saved or
@@ -452,10 +495,40 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             self._warn('lamp_refinement_save', f'lamp refinement not written to {kept.path}: '
                        f'{exc}')
 
+    def _report_disparity_map(self):
+        state = self.localizer_config.disparity_map_state
+        if state.startswith('refused'):
+            self.get_logger().error(f'disparity map file {self.params["disparity_map_path"]} '
+                                    f'refused, learning afresh (the file is kept as it is): '
+                                    f'{state[len("refused: "):]}')
+        elif state != 'off':
+            self.get_logger().info(f'disparity map: {state}')
+
+    def save_disparity_map(self):
+        """Write the kept cells plus this run's to ``disparity_map_path`` (never over a
+        refused file, nor before this run added a residual); errors are logged, never
+        raised.
+        """
+        dm, cfg = self.localizer.disparity_map, self.localizer_config
+        path = self.params['disparity_map_path']
+        if (not path or dm is None or not dm.run or dm.refused
+                or cfg.disparity_map_state.startswith('refused')):
+            return
+        g = cfg.geometry
+        try:
+            save_disparity_map(path, dm.cells(), params.load_mount(self.params).vehicle_id,
+                               g.fx * g.baseline_m, dm.config.cell_px,
+                               cfg.disparity_map_runs + 1)
+        except OSError as exc:
+            self._warn('disparity_map_save', f'disparity map not written to {path}: {exc}')
+
     def save_kept(self):
-        """At stop: what the train keeps (self-calibration, lamp refinement)."""
+        """At stop: what the train keeps (self-calibration, lamp refinement, disparity
+        map).
+        """
         self.save_self_calibration()
         self.save_lamp_refinement(finish=True)
+        self.save_disparity_map()
 
     @staticmethod
     def reacquisition_config(p):
@@ -523,7 +596,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             initial_speed_mps=p['initial_speed_mps'] if p['initial_speed_known'] else math.nan,
             max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'],
             self_survey=(SelfSurveyConfig(refine_map=False)
-                         if p['use_self_calibration'] else None))
+                         if p['use_self_calibration'] else None),
+            disparity_map=DisparityMapConfig() if p['use_disparity_map'] else None)
 
     # ------------------------------------------------------------------ inputs
     def _guarded(self, topic, stamp_ns, item):
@@ -748,6 +822,15 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                 'self_survey_lamps_inconsistent': len(survey.flagged)})
         else:
             values['self_calibration'] = 'off'
+        dm = self.localizer.disparity_map
+        state = self.localizer_config.disparity_map_state
+        values['disparity_map'] = (f'{state}; {dm.refused}' if dm is not None and dm.refused
+                                   else state)
+        if dm is not None:
+            cells, residuals, mean_abs = dm.summary()
+            values.update({'disparity_map_cells_in_use': cells,
+                           'disparity_map_residuals_this_run': residuals,
+                           'disparity_map_mean_abs_px': f'{mean_abs:.3f}'})
         kept = self.localizer_config.refinement_kept
         if kept is None:
             values['lamp_refinement'] = 'off'

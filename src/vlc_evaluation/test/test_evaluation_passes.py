@@ -73,7 +73,8 @@ def test_learning_passes_and_scored_runs_keep_their_train_and_seeds(tmp_path):
     assert len({s.seed for s in learn}) == 2 and learn[0].name == 'pass01_060kmh'
     assert learn[0].node_params['train_localizer_node'] == {
         'x': 1, 'self_calibration_path': str(tmp_path / 'kept' / 'self_calibration.yaml'),
-        'lamp_refinement_path': str(tmp_path / 'kept' / 'lamp_refinement.yaml')}
+        'lamp_refinement_path': str(tmp_path / 'kept' / 'lamp_refinement.yaml'),
+        'disparity_map_path': str(tmp_path / 'kept' / 'disparity_map.yaml')}
     first = passes.scored_runs(2, tmp_path / 'after00')
     later = passes.scored_runs(2, tmp_path / 'after03')
     seeds = [[s.seed for s in group] for group in first]
@@ -119,6 +120,16 @@ def test_kept_state_reads_both_files(tmp_path):
                                            'refinement_flags': 1}
     (tmp_path / 'self_calibration.yaml').write_text(': not yaml [')
     assert passes.kept_state(tmp_path)['refinement_triplets'] == 2
+    # the disparity map: cells in use (two passes or more) and their mean |δd|
+    (tmp_path / 'disparity_map.yaml').write_text(
+        'vehicle_id: t\ncamera_fx_b_px_m: 124.8\ncell_px: 64\nruns: 4\ncells:\n'
+        '- [14, 4, 3, 40, 400.0, 0.0, 1.0e5, 160.0, 0.0, 70.0]\n'
+        '- [15, 4, 1, 10, 100.0, 0.0, 1.0e4, -90.0, 0.0, 90.0]\n')
+    state = passes.kept_state(tmp_path)
+    assert state['disparity_map_runs'] == 4 and state['disparity_map_cells'] == 1
+    assert state['disparity_map_mean_abs_px'] == pytest.approx(0.4)
+    (tmp_path / 'disparity_map.yaml').write_text('cells: 3\n')
+    assert 'disparity_map_cells' not in passes.kept_state(tmp_path)
 
 
 def test_parse_params():

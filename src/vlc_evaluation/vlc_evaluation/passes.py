@@ -1,8 +1,9 @@
 """Multi-pass evaluation: one train on one line, run again and again (issue 17).
 
 A train in service passes the same lamps every day; what its localizer learns on one
-run (the files it keeps: the self-calibration, ``self_calibration_path``, and the
-lamp-map refinement, ``lamp_refinement_path``) is read at the next start. This protocol
+run (the files it keeps: the disparity map, ``disparity_map_path``, the optional
+self-survey's calibration, ``self_calibration_path``, and the lamp-map refinement,
+``lamp_refinement_path``) is read at the next start. This protocol
 measures what that is worth on a drawn rig profile:
 
 * a *train* is one drawn installation (``installation_seed``: vehicle, optics,
@@ -25,7 +26,7 @@ checkpoint n found them in ``after<n>/kept/``, and each scored run's own copy in
 
 *Ablations* (``ablations``): at the last checkpoint the scored runs are run again once
 per variant, each with one switch turned (:data:`ABLATIONS`: undistortion and
-rectification off, the refinement off, the self-calibration turned the other way),
+rectification off, the refinement off, the self-calibration — the disparity map — off),
 reading the same kept files, in
 ``after<n>/<variant>/``.
 """
@@ -35,6 +36,8 @@ import shutil
 
 import yaml
 
+from train_localizer.core.disparity_map import DisparityMap, DisparityMapConfig
+from train_localizer.core.disparity_map_file import DisparityMapFileError, load_disparity_map
 from train_localizer.core.kept_file import read_mapping
 from vlc_evaluation import ablations, budget, scenarios
 
@@ -46,6 +49,7 @@ LEARN_CELLS = 6
 GROUP_PREFIX = 'passes/'
 SELF_CALIBRATION_FILE = 'self_calibration.yaml'
 LAMP_REFINEMENT_FILE = 'lamp_refinement.yaml'
+DISPARITY_MAP_FILE = 'disparity_map.yaml'
 BEGIN_MARK, END_MARK = '<!-- passes:begin -->', '<!-- passes:end -->'
 LOCALIZER = 'train_localizer_node'
 #: name -> (what it turns, localizer parameters on top of the run's given the run's,
@@ -56,10 +60,8 @@ ABLATIONS = {
                         {'calibration': 'uncorrected'}),
     'no_refinement': ('lamp-map refinement off',
                       lambda given: {'lamp_refinement_path': ''}, {}),
-    'self_calibration_turned': (
-        'self-calibration turned the other way',
-        lambda given: {'use_self_calibration': not given.get('use_self_calibration', False)},
-        {}),
+    'no_disparity_map': ('self-calibration (the learnt disparity map) off',
+                         lambda given: {'use_disparity_map': False}, {}),
 }
 
 
@@ -76,7 +78,8 @@ def _localizer_params(base, files_dir):
     """
     files_dir = pathlib.Path(files_dir)
     return dict({'self_calibration_path': str(files_dir / SELF_CALIBRATION_FILE),
-                 'lamp_refinement_path': str(files_dir / LAMP_REFINEMENT_FILE)}, **base)
+                 'lamp_refinement_path': str(files_dir / LAMP_REFINEMENT_FILE),
+                 'disparity_map_path': str(files_dir / DISPARITY_MAP_FILE)}, **base)
 
 
 def learning_pass(train, k, files_dir, profile='realistic', speed_kmh=LEARN_SPEED_KMH,
@@ -140,6 +143,18 @@ def kept_state(files_dir):
         state.update(refinement_passes=refinement.get('passes'),
                      refinement_triplets=len(refinement.get('triplets') or []),
                      refinement_flags=len(refinement.get('flags') or []))
+    disparity = _read_yaml(pathlib.Path(files_dir) / DISPARITY_MAP_FILE)
+    if disparity:
+        try:
+            cells, runs, _ = load_disparity_map(
+                pathlib.Path(files_dir) / DISPARITY_MAP_FILE, disparity.get('vehicle_id'),
+                float(disparity.get('cell_px', DisparityMapConfig.cell_px)))
+        except (DisparityMapFileError, TypeError, ValueError):
+            cells = None
+        if cells is not None:
+            in_use, _, mean_abs = DisparityMap(kept=cells).summary()
+            state.update(disparity_map_runs=runs, disparity_map_cells=in_use,
+                         disparity_map_mean_abs_px=mean_abs)
     return state
 
 
@@ -237,8 +252,8 @@ def passes_table(results):
     speeds = sorted({v for f in figures.values() for v in f['dynamic']})
     head = ('| passes learnt | static max / mean (cm) | '
             + ' | '.join(f'{v} km/h max / mean (cm)' for v in speeds)
-            + ' | dynamic poses within 3σ | misses | kept, per train: self-calibration δ, '
-            'lamp refinement |')
+            + ' | dynamic poses within 3σ | misses | kept, per train: disparity map, '
+            'self-calibration δ, lamp refinement |')
     rows = [head, '|' + '---|' * (5 + len(speeds))]
     for n, fig in figures.items():
         kept = '; '.join(_kept_text(t, k) for t, k in sorted(fig['kept'].items()))
@@ -251,6 +266,9 @@ def passes_table(results):
 
 def _kept_text(train, kept):
     parts = []
+    if kept.get('disparity_map_cells') is not None:
+        parts.append(f'{kept["disparity_map_cells"]} cells, mean |δd| '
+                     f'{kept["disparity_map_mean_abs_px"]:.2f} px')
     if kept.get('disparity_offset_px') is not None:
         parts.append(f'δ {kept["disparity_offset_px"]:+.3f} ± '
                      f'{kept["disparity_offset_sigma_px"]:.3f} px')

@@ -293,7 +293,7 @@ def triangulate(obs, geometry, min_disparity_px=0.0):
     return p, J @ cov_in @ J.T
 
 
-def calibration_covariance(p_cam, geometry, config, raw_scale=1.0):
+def calibration_covariance(p_cam, geometry, config, raw_scale=1.0, disparity_sigma_px=None):
     """Covariance (3, 3) of a triangulated lamp from the calibration's uncertainty, m².
 
     First order, in the left optical frame, for the lamp at ``p_cam = (X, Y, Z)``: with
@@ -306,7 +306,8 @@ def calibration_covariance(p_cam, geometry, config, raw_scale=1.0):
     every frame and lamp, so the fix reports them in its systematic part. With raw
     images (``geometry.raw_images``) the rectification of the calibration adds its own
     direction and disparity error (:func:`raw_calibration_covariance`, times
-    ``raw_scale``).
+    ``raw_scale``; ``disparity_sigma_px`` replaces the calibration's disparity 1σ for
+    this lamp, e.g. where the learnt disparity map knows it better).
     """
     p = np.asarray(p_cam, dtype=float)
     g = geometry
@@ -319,7 +320,7 @@ def calibration_covariance(p_cam, geometry, config, raw_scale=1.0):
     if np.any(sig > 0.0):
         J = skew(p) @ g.R_base_cam.T
         cov += J @ np.diag(sig * sig) @ J.T
-    return cov + raw_scale * raw_calibration_covariance(p, g)
+    return cov + raw_scale * raw_calibration_covariance(p, g, disparity_sigma_px)
 
 
 def lamp_sigma(lamp, config):
@@ -329,7 +330,7 @@ def lamp_sigma(lamp, config):
     return _lamp_sigma_or_default(getattr(lamp, 'position_sigma_m', None), config)
 
 
-def raw_calibration_covariance(p_cam, geometry):
+def raw_calibration_covariance(p_cam, geometry, disparity_sigma_px=None):
     """(3, 3) covariance of a triangulated lamp ``p_cam`` (left optical frame, m) from
     the calibration's systematic error (``geometry.calibration_sigma_px``: direction and
     disparity 1σ, px), through the triangulation Jacobian; zero unless
@@ -340,9 +341,11 @@ def raw_calibration_covariance(p_cam, geometry):
     distortion near the image corners): 0.4 px on the 13 px of a lamp 9 m ahead is a
     3 % range error, 30 cm, far above the spot's own 0.02 px. Weighted as such, the fix
     leans on the lamp's direction where the range is weak instead of trusting a biased
-    range.
+    range. ``disparity_sigma_px`` (not None) replaces the disparity 1σ for this lamp.
     """
     sigma_dir, sigma_disp = (float(v) for v in geometry.calibration_sigma_px)
+    if disparity_sigma_px is not None:
+        sigma_disp = float(disparity_sigma_px)
     if not geometry.raw_images or (sigma_dir <= 0.0 and sigma_disp <= 0.0):
         return np.zeros((3, 3))
     g = geometry
@@ -362,7 +365,7 @@ def predicted_camera_point(base_position_m, R_map_base, lamp_position_m, geometr
 
 
 def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
-              lamp_sigma_m=None):
+              lamp_sigma_m=None, disparity_sigma_px=None):
     """``base_link`` position from the lamp's map position and the attitude (eq. 13–14).
 
     ``p_base = R_base_cam·p_cam + t_base_cam`` (eq. 13) and
@@ -383,6 +386,9 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
     lamp_sigma_m : ndarray (3,) or None
         Survey 1σ of this lamp along map x, y, z (:func:`lamp_sigma`); None:
         ``config.lamp_position_sigma_m`` on every axis, m.
+    disparity_sigma_px : float or None
+        Systematic disparity 1σ of this lamp's pair (raw images), px; None: the
+        calibration's (``geometry.calibration_sigma_px``).
 
     Returns
     -------
@@ -399,7 +405,9 @@ def paper_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, co
     var_random = float(J_cam @ cov_cam @ J_cam)
     sigma_lamp = _lamp_sigma_or_default(lamp_sigma_m, config)
     var_sys = (float(J_att @ cov_att @ J_att) + float(t @ (sigma_lamp ** 2 * t))
-               + float(J_cam @ calibration_covariance(p_cam, geometry, config) @ J_cam))
+               + float(J_cam @ calibration_covariance(p_cam, geometry, config,
+                                                      disparity_sigma_px=disparity_sigma_px)
+                       @ J_cam))
     return FixResult(chainage_m=chainage, var_m2=var_random + var_sys,
                      var_random_m2=var_random, var_systematic_m2=var_sys,
                      chi2_geometry=float('nan'), position_m=position,
@@ -417,7 +425,7 @@ def exp_so3(v):
 
 
 def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
-                    lamp_sigma_m=None):
+                    lamp_sigma_m=None, disparity_sigma_px=None):
     """Chainage of ``base_link`` by a Gauss–Newton fit under the track constraint, with
     the attitude error estimated alongside it.
 
@@ -446,7 +454,8 @@ def constrained_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geomet
     """
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base,
                         np.asarray(cov_att, float) * config.attitude_weight_inflation,
-                        geometry, config, lamp_sigma_m)
+                        geometry, config, lamp_sigma_m,
+                        disparity_sigma_px=disparity_sigma_px)
     s, dtheta, cov_post, J, W, e, prior_info = fit
     var = float(cov_post[0, 0])
     # s = K·p_cam to first order: its pixel-noise part (independent frame to frame)
@@ -467,7 +476,7 @@ def _lamp_sigma_or_default(lamp_sigma_m, config):
 
 
 def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry, config,
-                  lamp_sigma_m=None, calibration_scale=1.0):
+                  lamp_sigma_m=None, calibration_scale=1.0, disparity_sigma_px=None):
     """Gauss–Newton fit of ``s`` and ``δθ`` (see :func:`constrained_fix`).
 
     Returns ``(s, δθ, cov_post (4, 4), J (3, 4), W (3, 3), residual (3,), prior_info)``
@@ -487,7 +496,8 @@ def _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geomet
     sigma_lamp = _lamp_sigma_or_default(lamp_sigma_m, config)
     cov_meas = (cov_cam + A_nz @ np.diag(np.square(config.track_sigma_yz_m)) @ A_nz.T
                 + B @ np.diag(sigma_lamp ** 2) @ B.T
-                + calibration_covariance(p_cam, g, config, calibration_scale))
+                + calibration_covariance(p_cam, g, config, calibration_scale,
+                                         disparity_sigma_px))
     W = np.linalg.inv(cov_meas)
     prior_info = np.linalg.inv(cov_prior + np.eye(3) * 1e-14)
     dtheta = np.zeros(3)
@@ -524,7 +534,7 @@ VISION_ATTITUDE_PRIOR_SIGMA_RAD = (0.2, 0.2, 1.0)
 
 
 def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, config,
-                    lamp_sigma_m=None, calibration_scale=1.0):
+                    lamp_sigma_m=None, calibration_scale=1.0, disparity_sigma_px=None):
     """Attitude error of the IMU seen by one lamp, without the IMU's attitude prior.
 
     The fit of :func:`constrained_fix` with the IMU prior replaced by a weak one
@@ -548,13 +558,14 @@ def vision_attitude(p_cam, cov_cam, lamp_position_m, R_map_base, geometry, confi
     # and the direction weakened by the mount uncertainty let the iteration reach it from
     # a 30° heading error. The mount error (0.1°) is small beside the aid's own σ.
     fit = _attitude_fit(p_cam, cov_cam, lamp_position_m, R_map_base, cov_prior, geometry,
-                        config.without_calibration(), lamp_sigma_m, calibration_scale)
+                        config.without_calibration(), lamp_sigma_m, calibration_scale,
+                        disparity_sigma_px)
     return np.asarray(fit[1], float), np.asarray(fit[2][1:, 1:], float)
 
 
 def compute_fix(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
-                lamp_sigma_m=None):
+                lamp_sigma_m=None, disparity_sigma_px=None):
     """:func:`constrained_fix` or :func:`paper_fix` as ``config.use_range_constraint`` says."""
     fn = constrained_fix if config.use_range_constraint else paper_fix
     return fn(p_cam, cov_cam, lamp_position_m, R_map_base, cov_att, geometry, config,
-              lamp_sigma_m)
+              lamp_sigma_m, disparity_sigma_px)

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from train_localizer.core.disparity_map import DisparityMap
 from train_localizer.core.fix import (
     FixConfig,
     RigGeometry,
@@ -200,6 +201,13 @@ class LocalizerConfig:
     refinement_applied: dict = field(default_factory=dict)
     #: :class:`~train_localizer.core.lamp_refinement_file.KeptRefinement` the node read
     refinement_kept: object = None
+    #: :class:`~train_localizer.core.disparity_map.DisparityMapConfig` (None: off; learnt
+    #: and applied only with raw images) and the kept cells ({(i, j): Cell})
+    disparity_map: object = None
+    disparity_map_kept: dict = field(default_factory=dict)
+    disparity_map_kept_fx_b: float = None
+    disparity_map_runs: int = 0           # runs behind the kept cells
+    disparity_map_state: str = 'off'      # what the node made of the kept file
 
     def __post_init__(self):
         for name in ('publish_rate_hz', 'history_s', 'imu_timeout_s', 'imu_max_gap_s',
@@ -222,6 +230,8 @@ class _Prepared:
     cov_cam: np.ndarray
     R: np.ndarray
     cov_att: np.ndarray
+    disparity_sigma_px: float = None      # the learnt map's disparity 1σ (None: calibration's)
+    raw_obs: object = None                # the observation before the map's correction
 
 
 class Localizer:
@@ -251,6 +261,10 @@ class Localizer:
         self._survey_seq = 0
         self.pass_recorder = (PassRecorder(cfg.refinement, cfg.refinement_applied)
                               if cfg.refinement is not None else None)
+        self.disparity_map = (DisparityMap(cfg.disparity_map, cfg.disparity_map_kept,
+                                           cfg.disparity_map_kept_fx_b)
+                              if cfg.disparity_map is not None else None)
+        self._disparity_checked = False
         self._reset_state()
 
     # ----------------------------------------------------------------- state
@@ -681,7 +695,8 @@ class Localizer:
         """(FixResult, geometry_ok) of a prepared observation explained by ``lamp``."""
         cfg = self.config
         fix = compute_fix(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R, prep.cov_att,
-                          cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix))
+                          cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix),
+                          prep.disparity_sigma_px)
         geometry_ok = not (fix.chi2_geometry > cfg.integrity.geometry_gate_chi2)
         return fix, geometry_ok
 
@@ -694,6 +709,9 @@ class Localizer:
             report.events.append(Event(Level.WARN, 'fix_too_old',
                                        'lamp record older than the history window dropped'))
             return
+        raw_obs, disparity_sigma = obs, None
+        if self.disparity_map is not None and cfg.geometry.raw_images:
+            obs, disparity_sigma = self._disparity_corrected(obs)
         p_cam, cov_cam = triangulate(obs, cfg.geometry, cfg.fix.min_disparity_px)
         if p_cam is None:
             mon.counters.bad_observations += 1
@@ -707,7 +725,7 @@ class Localizer:
             self._start_survey()
             p_cam, cov_cam = self.survey.correct(p_cam, cov_cam, obs.disparity_px)
         R, cov_att = self._attitude(t_m)
-        prep = _Prepared(t_m, obs, p_cam, cov_cam, R, cov_att)
+        prep = _Prepared(t_m, obs, p_cam, cov_cam, R, cov_att, disparity_sigma, raw_obs)
         lamp = None
         if obs.uid is not None:
             lamp = self.lamp_map.by_uid(obs.uid)
@@ -770,6 +788,9 @@ class Localizer:
         mon.on_accepted(t_m, confirmed)
         if confirmed and self.pass_recorder is not None:
             self.pass_recorder.add(t_m / NS_PER_S, lamp.uid, fix.chainage_m, fix.var_random_m2)
+        if (confirmed and self.disparity_map is not None
+                and self.config.geometry.raw_images):
+            self._learn_disparity(prep, lamp, state)
         report.fixes.append(FixRecord(t_m, obs.uid, lamp.uid, 'accepted', fix.chainage_m,
                                       fix.var_m2, d2))
         self._attitude_aid(prep, lamp, fix, report)
@@ -785,7 +806,8 @@ class Localizer:
             return
         dtheta, cov = vision_attitude(prep.p_cam, prep.cov_cam, lamp.position_m, prep.R,
                                       cfg.geometry, cfg.fix, lamp_sigma(lamp, cfg.fix),
-                                      cfg.attitude_aiding_calibration_inflation)
+                                      cfg.attitude_aiding_calibration_inflation,
+                                      prep.disparity_sigma_px)
         cov = 0.5 * (cov + cov.T)
         if not (np.all(np.isfinite(dtheta)) and np.all(np.isfinite(cov))
                 and np.all(np.linalg.eigvalsh(cov) > 0.0)):
@@ -853,6 +875,40 @@ class Localizer:
             return None, None, float('nan'), why
         fix, d2 = fixes[lamp.uid]
         return lamp, fix, d2, why
+
+    # ------------------------------------------------------------ disparity map
+    def _disparity_corrected(self, obs):
+        """(observation, disparity 1σ px or None): ``obs`` with the learnt disparity error
+        of its image cell taken off the right centre, and that cell's 1σ (never above the
+        calibration's), or ``obs`` unchanged where the map does not know the cell.
+        """
+        g = self.config.geometry
+        if not self._disparity_checked:       # camera_info has come by the first observation
+            self._disparity_checked = True
+            self.disparity_map.check_calibration(g.fx * g.baseline_m)
+        corr = self.disparity_map.correction(obs.uv_left[0],
+                                             0.5 * (obs.uv_left[1] + obs.uv_right[1]))
+        if corr is None:
+            return obs, None
+        delta, sigma = corr
+        corrected = dataclasses.replace(obs, uv_right=obs.uv_right + np.array([delta, 0.0]))
+        return corrected, min(sigma, float(g.calibration_sigma_px[1]))
+
+    def _learn_disparity(self, prep, lamp, state):
+        """One accepted confirmed lamp's disparity residual against the filter's chainage
+        before its fix (:meth:`DisparityMap.residual`: the range only, no direction).
+        """
+        cfg, raw = self.config, prep.raw_obs
+        base, tangent, _ = cfg.fix.track.frame(float(state.x[0]))
+        cam = base + prep.R @ cfg.geometry.t_base_cam
+        lamp_position = np.asarray(lamp.position_m, float)
+        along = float((lamp_position - cam) @ tangent)
+        sigma_s = math.sqrt(max(float(state.P[0, 0]), 0.0) + self._systematic_var)
+        v = 0.5 * (raw.uv_left[1] + raw.uv_right[1])
+        res = self.disparity_map.residual(raw.uv_left, v, raw.disparity_px, lamp_position,
+                                          cam, along, sigma_s, cfg.geometry)
+        if res is not None:
+            self.disparity_map.add(raw.uv_left[0], v, res[0], res[1], lamp.uid)
 
     # ------------------------------------------------------------ self-survey
     def _start_survey(self):
