@@ -197,13 +197,11 @@ def run_pass(seed, dm_config, kept=None, error=None):
     """
     error = error or field
     traj, events = truth_pass(seed)
-    k = RIG.intrinsics
-    geometry = RigGeometry(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, baseline_m=RIG.baseline_m,
-                           t_base_cam=RIG.cam_positions_base()[0], R_base_cam=RIG.R_base_cam,
-                           calibration_sigma_px=(0.2, 0.8), raw_images=True)
+    geometry = dataclasses.replace(RigGeometry.from_stereo_rig(RIG),
+                                   calibration_sigma_px=(0.2, 0.8), raw_images=True)
     config = LocalizerConfig(geometry=geometry, disparity_map=dm_config,
                              disparity_map_kept=kept or {},
-                             disparity_map_kept_fx_b=k.fx * RIG.baseline_m)
+                             disparity_map_kept_fx_b=geometry.fx * geometry.baseline_m)
     loc = Localizer(LAMPS, config)
 
     def offset(stamp, observations, truth):

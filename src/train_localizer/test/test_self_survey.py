@@ -105,10 +105,8 @@ def run_pass(delta_px, self_survey):
     stating its calibration's disparity 1σ as 0.8 px (raw images).
     """
     traj, events = truth_pass()
-    k = RIG.intrinsics
-    geometry = RigGeometry(fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy, baseline_m=RIG.baseline_m,
-                           t_base_cam=RIG.cam_positions_base()[0], R_base_cam=RIG.R_base_cam,
-                           calibration_sigma_px=(0.2, 0.8), raw_images=True)
+    geometry = dataclasses.replace(RigGeometry.from_stereo_rig(RIG),
+                                   calibration_sigma_px=(0.2, 0.8), raw_images=True)
     config = LocalizerConfig(geometry=geometry, self_survey=self_survey)
     loc = Localizer(LAMPS, config)
 
