@@ -266,9 +266,11 @@ def passes_table(results):
 
 def _kept_text(train, kept):
     parts = []
-    if kept.get('disparity_map_cells') is not None:
-        parts.append(f'{kept["disparity_map_cells"]} cells, mean |δd| '
+    if kept.get('disparity_map_cells'):
+        parts.append(f'disparity map {kept["disparity_map_cells"]} cells, mean abs δd '
                      f'{kept["disparity_map_mean_abs_px"]:.2f} px')
+    elif kept.get('disparity_map_cells') == 0:
+        parts.append('disparity map: no cell in use yet')
     if kept.get('disparity_offset_px') is not None:
         parts.append(f'δ {kept["disparity_offset_px"]:+.3f} ± '
                      f'{kept["disparity_offset_sigma_px"]:.3f} px')
@@ -302,7 +304,8 @@ def describe(results, passes, profile, learn_speed_kmh=LEARN_SPEED_KMH,
             f'km/h each; at each checkpoint static points '
             f'{", ".join(f"{p:g}" for p in points_m)} m and one dynamic run per speed, '
             'with the same seeds at every checkpoint. Localizer parameters: '
-            + (given or 'the defaults') + ' (and `self_calibration_path`, `lamp_refinement_path`).')
+            + (given or 'the defaults') + ' (and the kept files: `disparity_map_path`, '
+            '`self_calibration_path`, `lamp_refinement_path`).')
 
 
 def update_docs(path, text, command):
