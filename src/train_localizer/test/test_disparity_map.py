@@ -23,9 +23,10 @@ from vlc_stereo_camera.core.upstream import (
     SensorErrors,
     SensorSimulator,
     SimTiming,
+    along_track_errors,
+    disparity_error_hook,
     event_stream,
     feed_localizer,
-    from_stamp_ns,
 )
 
 GEOMETRY = RigGeometry(fx=1040.0, fy=1040.0, cx=640.0, cy=360.0, baseline_m=0.12)
@@ -203,17 +204,8 @@ def run_pass(seed, dm_config, kept=None, error=None):
                              disparity_map_kept=kept or {},
                              disparity_map_kept_fx_b=geometry.fx * geometry.baseline_m)
     loc = Localizer(LAMPS, config)
-
-    def offset(stamp, observations, truth):
-        return [dataclasses.replace(o, uv_right=(o.uv_right[0] - error(o.uv_left[0]),
-                                                 o.uv_right[1]))
-                for o in observations]
-
-    poses, _, _ = feed_localizer(loc, events, frame_hook=offset)
-    poses = [p for p in poses if from_stamp_ns(p.stamp_ns) > 1.0]
-    truth = traj.sample(np.array([from_stamp_ns(p.stamp_ns) for p in poses])).position_m
-    err = np.array([p.chainage_m for p in poses]) - truth[:, 0]
-    return err, np.sqrt([p.chainage_var_m2 for p in poses]), loc
+    poses, _, _ = feed_localizer(loc, events, frame_hook=disparity_error_hook(error))
+    return (*along_track_errors(traj, poses, 1.0), loc)
 
 
 def test_a_learnt_map_corrects_the_far_lamps_of_the_next_pass():

@@ -24,9 +24,10 @@ from vlc_stereo_camera.core.upstream import (
     SensorErrors,
     SensorSimulator,
     SimTiming,
+    along_track_errors,
+    disparity_error_hook,
     event_stream,
     feed_localizer,
-    from_stamp_ns,
 )
 
 FB = 1040.0 * 0.12          # fx·b, px·m
@@ -109,16 +110,9 @@ def run_pass(delta_px, self_survey):
                                    calibration_sigma_px=(0.2, 0.8), raw_images=True)
     config = LocalizerConfig(geometry=geometry, self_survey=self_survey)
     loc = Localizer(LAMPS, config)
-
-    def offset(stamp, observations, truth):
-        return [dataclasses.replace(o, uv_right=(o.uv_right[0] - delta_px, o.uv_right[1]))
-                for o in observations]
-
-    poses, _, _ = feed_localizer(loc, events, frame_hook=offset)
-    poses = [p for p in poses if from_stamp_ns(p.stamp_ns) > 1.0]
-    truth = traj.sample(np.array([from_stamp_ns(p.stamp_ns) for p in poses])).position_m
-    err = np.array([p.chainage_m for p in poses]) - truth[:, 0]
-    return err, np.sqrt([p.chainage_var_m2 for p in poses]), loc
+    poses, _, _ = feed_localizer(loc, events,
+                                 frame_hook=disparity_error_hook(lambda u: delta_px))
+    return (*along_track_errors(traj, poses, 1.0), loc)
 
 
 @pytest.mark.parametrize('delta', [0.5, -0.5])

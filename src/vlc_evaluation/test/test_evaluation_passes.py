@@ -164,3 +164,13 @@ def test_passes_table_has_a_row_per_checkpoint(tmp_path):
     doc.write_text('a\n<!-- passes:begin -->\nold\n<!-- passes:end -->\nb\n')
     passes.update_docs(doc, table, 'run_evaluation --passes 3')
     assert 'old' not in doc.read_text() and '| first pass |' in doc.read_text()
+
+
+def test_kept_text_names_the_disparity_map_without_a_table_pipe():
+    assert passes._kept_text(8, {'disparity_map_cells': 7, 'disparity_map_mean_abs_px': 0.17,
+                                 'refinement_passes': 3, 'refinement_triplets': 5,
+                                 'refinement_flags': 0}) == (
+        '8: disparity map 7 cells, mean abs δd 0.17 px, 5 triplets, 0 flagged')
+    assert passes._kept_text(8, {'disparity_map_cells': 0,
+                                 'disparity_map_mean_abs_px': float('nan')}) == (
+        '8: disparity map: no cell in use yet')

@@ -18,7 +18,7 @@ and the IMU compensator leave behind:
 Used by the tests (against analytic truth) and by the benchmarks: :func:`feed_localizer`
 drives the localizer, :func:`run_core` an IMU-and-frames companion core.
 """
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -249,6 +249,24 @@ def feed_localizer(localizer, events, frame_hook=None, on_report=None):
         fixes += report.fixes
         logs += report.events
     return poses, fixes, logs
+
+
+def along_track_errors(trajectory, poses, after_s=0.0):
+    """(chainage − truth, published 1σ), m, of the poses stamped after ``after_s``."""
+    poses = [p for p in poses if from_stamp_ns(p.stamp_ns) > after_s]
+    truth = trajectory.sample(np.array([from_stamp_ns(p.stamp_ns) for p in poses])).position_m
+    return (np.array([p.chainage_m for p in poses]) - truth[:, 0],
+            np.sqrt([p.chainage_var_m2 for p in poses]))
+
+
+def disparity_error_hook(error_px):
+    """A ``frame_hook`` for :func:`feed_localizer` that makes every disparity ``error_px(u)``
+    px too large (``u`` the left centre's column): the right centre moved left by it.
+    """
+    def hook(stamp, observations, truth):
+        return [replace(o, uv_right=(o.uv_right[0] - error_px(o.uv_left[0]), o.uv_right[1]))
+                for o in observations]
+    return hook
 
 
 def dark_lamps(lamp_map, dark_m):
