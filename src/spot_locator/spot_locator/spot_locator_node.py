@@ -399,6 +399,7 @@ class SpotLocatorNode(Node):
         values['camera_info_refused'] = self._infos.refused
         values['camera_info_ignored'] = self._infos.ignored
         values['processing_ms_median'] = f'{np.median(proc):.2f}' if proc.size else 'nan'
+        values['processing_ms_p99'] = f'{np.percentile(proc, 99):.2f}' if proc.size else 'nan'
         values['processing_ms_max'] = f'{proc.max():.2f}' if proc.size else 'nan'
         values['speed_mps'] = f'{self._speed[0]:.3f}'
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]

@@ -863,6 +863,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
                 arr = np.asarray(data)
                 values[key + '_median'] = f'{np.median(arr):.3f}'
                 values[key + '_p99'] = f'{np.percentile(arr, 99):.3f}'
+                values[key + '_max'] = f'{arr.max():.3f}'
         rej = self.localizer.monitor.last_rejection
         if rej is not None:
             values['last_rejected_uid'] = f'{rej.uid:#06x}' if rej.uid is not None else 'none'

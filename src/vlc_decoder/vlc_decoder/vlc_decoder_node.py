@@ -383,6 +383,8 @@ class VlcDecoderNode(Node):
             'lamps_confirmed': len(tracker.confirmations),
             'anomalous_uids': ' '.join(f'{u:#06x}' for u in anomalies),
             'decode_ms_median': f'{np.median(self.proc_ms):.2f}' if self.proc_ms else 'nan',
+            'decode_ms_p99': (f'{np.percentile(self.proc_ms, 99):.2f}' if self.proc_ms
+                              else 'nan'),
             'decode_ms_max': f'{np.max(self.proc_ms):.2f}' if self.proc_ms else 'nan',
         })
         self.pub_diag.publish(diagnostic_array(

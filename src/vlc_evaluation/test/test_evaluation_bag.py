@@ -88,6 +88,7 @@ def test_graph_health_processing_and_heading_series(tmp_path, run_bag):
                                      {'lag_behind_realtime_s': '0.000'})),
                          (0.3, _diag(epoch + 0.3, 'spot_locator_node: spots',
                                      {'unpaired': '0', 'processing_ms_median': '3.5',
+                                      'processing_ms_p99': '9.0',
                                       'processing_ms_max': '12.0'})),
                          (0.4, _diag(epoch + 0.4, 'vlc_decoder: lamp identification',
                                      {'decode_ms_median': 'nan', 'decode_ms_max': 'nan'})))]
@@ -96,8 +97,8 @@ def test_graph_health_processing_and_heading_series(tmp_path, run_bag):
     health = bag_eval.graph_health(run)
     assert health['camera_lag_max_s'] == 0.25 and health['degraded'] is True
     proc = bag_eval.processing_times(run)
-    assert proc['spot_locator'] == [3.5, 12.0]
-    assert proc['vlc_decoder'] == [None, None] and proc['train_localizer'] == [None, None]
+    assert proc['spot_locator'] == [3.5, 9.0, 12.0]
+    assert proc['vlc_decoder'] == [None] * 3 and proc['train_localizer'] == [None] * 3
 
 
 def test_heading_errors_before_and_after():

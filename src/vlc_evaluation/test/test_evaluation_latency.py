@@ -62,6 +62,10 @@ def test_latencies_of_a_constructed_timeline(tmp_path):
     # pose 35 ms after readout + readout − spot exposure offset (10 ms)
     expected = 35.0 + (latency.READOUT_S - 0.010) * 1e3
     np.testing.assert_allclose(out['exposure_to_pose'], [expected] * 5, atol=1e-3)
+    # split into the camera's readout after the spot's rows and what the graph adds
+    np.testing.assert_allclose(out['readout_wait'], [(latency.READOUT_S - 0.010) * 1e3] * 5,
+                               atol=1e-3)
+    np.testing.assert_allclose(out['frame_to_pose'], [35.0] * 5, atol=1e-3)
     np.testing.assert_allclose(out['imu_compensator'], [2.0] * 5, atol=1e-6)
     s = latency.summarize_ms(out['decoder'])
     assert s['count'] == 5 and s['median_ms'] == pytest.approx(30.0, abs=1e-3)

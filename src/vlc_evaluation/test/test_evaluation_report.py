@@ -84,6 +84,11 @@ def test_detail_identification_latency_and_health_tables():
     table, figures = report.latency_table(_static_results() + _dynamic_results())
     assert figures['runs'] == 20 and figures['decoder']['count'] == 40
     assert figures['decoder']['processing_median_ms'] == pytest.approx(5.0)
+    # a result of [median, max] (a bag from before the p99) has no p99
+    assert figures['decoder']['processing_max_ms'] == pytest.approx(9.0)
+    assert figures['decoder']['processing_p99_ms'] is None
+    assert '| vlc_decoder | frame complete → vlc/lamps sent |' in table
+    assert '5.00 / – / 9.00 |' in table
     assert figures['exposure_to_pose']['median_ms'] == pytest.approx(30.0)
     text, figures = report.health_summary(_static_results() + _dynamic_results())
     assert figures['reruns'] == 2 and figures['degraded'] == ['static_0.5']
@@ -209,3 +214,43 @@ def test_cpu_and_peak_rss_files_are_parsed_and_summed_per_run(tmp_path):
     # runs without the memory figures (exec-spawned nodes): no RSS sentence
     text, figures = report.timing_summary(runs[3:])
     assert 'RSS' not in text and 'rss_mib' not in figures
+
+
+def test_latency_table_processing_median_p99_max():
+    runs = [{'scenario': {'realtime_factor': 1.0},
+             'latency_ms': {'exposure_to_pose': [20.0, 30.0], 'readout_wait': [12.0, 15.0],
+                            'frame_to_pose': [8.0, 15.0]},
+             'processing_ms': {'spot_locator': values}}
+            for values in ([4.0, 7.0, 11.0], [6.0, 8.0, 12.0], [None, None, None])]
+    table, figures = report.latency_table(runs)
+    # the runs' medians' median, the largest p99 and the largest max
+    assert figures['spot_locator']['processing_median_ms'] == pytest.approx(5.0)
+    assert figures['spot_locator']['processing_p99_ms'] == pytest.approx(8.0)
+    assert figures['spot_locator']['processing_max_ms'] == pytest.approx(12.0)
+    assert '| 5.00 / 8.00 / 12.00 |' in table
+    # the end-to-end latency's two parts have rows of their own
+    assert figures['readout_wait']['median_ms'] == pytest.approx(13.5)
+    assert figures['frame_to_pose']['max_ms'] == pytest.approx(15.0)
+    assert '| … of it: the graph | frame complete → train/pose sent |' in table
+
+
+def test_live_graph_alone_latency_section_and_log(tmp_path):
+    live = [{'scenario': {'realtime_factor': 1.0, 'name': f'dynamic_120kmh_seed{k}'},
+             'latency_ms': {'exposure_to_pose': [25.0 + k, 35.0 + k]},
+             'processing_ms': {'spot_locator': [3.0, 5.0, 6.0]},
+             'health': {'degraded': k == 2, 'camera_lag_max_s': 0.0}} for k in (1, 2)]
+    text = report.write_report([], [], tmp_path, title='Evaluation', live_alone=live)
+    assert '### Latency, the whole live graph alone at real time' in text
+    assert '1 of 2 runs had a node behind' in text
+    figures = json.loads((tmp_path / 'report.json').read_text())['figures']
+    assert figures['latency_live']['exposure_to_pose']['count'] == 4
+    assert figures['latency_live']['behind'] == 1
+    # the latency log keeps the live figures beside the replay's
+    replay = report.latency_table([{'scenario': {'realtime_factor': 1.0},
+                                    'latency_ms': {'exposure_to_pose': [24.0]}}])[1]
+    report.append_latency_run(tmp_path, 'cmd', replay, 0.0,
+                              live=report.latency_table(live)[1])
+    report.append_latency_run(tmp_path, 'cmd2', replay, 0.0)
+    table, runs = report.latency_runs_table(tmp_path)
+    assert runs[0]['live_samples'] == 4 and runs[0]['live_p99_ms'] == pytest.approx(36.97)
+    assert '| 31.50 / 36.97 |' in table and table.rstrip().endswith('| – |')

@@ -259,17 +259,21 @@ def heading_series(run, rate_hz=50.0):
 
 # (node, diagnostics key) of each node's own processing-time report, ms
 PROCESSING_KEYS = {
-    'vlc_decoder': [('vlc_decoder', 'decode_ms_median'), ('vlc_decoder', 'decode_ms_max')],
+    'vlc_decoder': [('vlc_decoder', 'decode_ms_median'), ('vlc_decoder', 'decode_ms_p99'),
+                    ('vlc_decoder', 'decode_ms_max')],
     'spot_locator': [('spot_locator_node', 'processing_ms_median'),
+                     ('spot_locator_node', 'processing_ms_p99'),
                      ('spot_locator_node', 'processing_ms_max')],
     'train_localizer': [('train_localizer', 'processing_ms_per_fix_median'),
-                        ('train_localizer', 'processing_ms_per_fix_p99')],
+                        ('train_localizer', 'processing_ms_per_fix_p99'),
+                        ('train_localizer', 'processing_ms_per_fix_max')],
 }
 
 
 def processing_times(run):
     """Each node's self-reported processing time per frame (ms) at its last report:
-    ``{node: [median, max or p99]}`` (None where the node did not report one).
+    ``{node: [median, p99, max]}`` over the node's last window of frames (None where the
+    node did not report one).
     """
     out = {}
     for node, keys in PROCESSING_KEYS.items():

@@ -51,7 +51,20 @@ def _progress(done, total, name, started):
 
 # Latency bags: 8 s of sensors (240 stereo frames, 3200 IMU samples) per speed.
 LATENCY_SPEEDS_KMH = (60, 120)
+LIVE_GROUP = 'latency/live'
 LATENCY_BAG_S = 8.0
+
+
+# The live graph alone at real time (rig, processing nodes and recorder; nothing else on
+# the machine): the same speeds, two seeds each, the dynamic protocol's run length.
+LIVE_LATENCY_RUNS = 2
+
+
+def live_latency_scenarios():
+    """Dynamic scenarios whose latency is measured with the whole live graph alone on
+    the machine, at real time (a fresh lane each, never rerun slower).
+    """
+    return scenarios.dynamic_scenarios(speeds_kmh=LATENCY_SPEEDS_KMH, runs=LIVE_LATENCY_RUNS)
 
 
 def latency_replays(out, rescore=False):
@@ -167,7 +180,9 @@ def main(argv=None):
                              f'{"/".join(map(str, LATENCY_SPEEDS_KMH))} km/h (kept in '
                              'OUT/latency_bags), then replay each at real-time factor 1 '
                              'through the processing nodes, one at a time, after everything '
-                             'else (the rig\'s renderer is not on the cores)')
+                             'else (the rig\'s renderer is not on the cores); and run the '
+                             f'whole live graph alone at real time, {LIVE_LATENCY_RUNS} runs '
+                             'per speed (OUT/latency/live)')
     parser.add_argument('--faults', action='store_true',
                         help='also run the fault protocol (evaluation/faults.py: CPU overload, '
                              'dropouts, stalls, killed nodes, clock steps, malformed input), '
@@ -324,7 +339,7 @@ def main(argv=None):
                                           spawn=args.spawn, progress=progress,
                                           rescore=args.rescore, retries=args.retries,
                                           fixed_pace=args.fixed_pace)
-        latency_results = []
+        latency_results, live_alone = [], []
         protocols_s = time.monotonic() - started
         if args.latency:
             # alone on the machine, at real time: no parallel lane, no slower rerun, a
@@ -334,10 +349,18 @@ def main(argv=None):
                 latency_results += scenarios.run_protocols(
                     {group: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
                     rescore=args.rescore, retries=0)[group]
-            total += len(latency_results)
+            # the whole live graph (rig included), alone and at real time: a run in which
+            # a node fell behind is kept as it is and counted, not rerun
+            for scenario in live_latency_scenarios():
+                live_alone += scenarios.run_protocols(
+                    {LIVE_GROUP: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
+                    rescore=args.rescore, retries=0)[LIVE_GROUP]
+            total += len(latency_results) + len(live_alone)
             if latency_results and not args.rescore:
                 report.append_latency_run(out, command, report.latency_table(latency_results)[1],
-                                          protocols_s if results else 0.0)
+                                          protocols_s if results else 0.0,
+                                          live=report.latency_table(live_alone)[1]
+                                          if live_alone else None)
         passes_results = None
         if args.passes:
             passes_results = passes.run_passes(
@@ -373,7 +396,7 @@ def main(argv=None):
                                title=(f'Accuracy ({args.protocol} protocol)'
                                       if args.protocol not in ('none', 'companions')
                                       else 'Evaluation'),
-                               ablations=ablation, replays=replayed)
+                               ablations=ablation, replays=replayed, live_alone=live_alone)
     if args.budget:
         table, figures = budget.budget_table(results, args.budget_profile)
         budget.plot_budget(figures, out / 'budget.png')

@@ -15,7 +15,9 @@ Per frame that carries a confirmed lamp spot pair:
 * exposure → pose: that pose's send time − the exposure mid-time of the spot's rows,
   i.e. (pose sent − frame complete) + (t0 + readout − t_exposure). The second term is
   physical camera time; at a real-time factor of 1 the sum is exactly the wall time
-  from exposure to pose.
+  from exposure to pose. Both terms are kept per sample: ``readout_wait`` (the spot's
+  rows to the frame's last row: up to a whole readout, 21.6 ms, for a spot in the top
+  rows; no software can shorten it) and ``frame_to_pose`` (what the graph adds).
 * IMU compensator: ``imu/data`` sent − ``imu/data_raw`` sent, same stamp.
 
 Only frames after the localizer's first pose count (before it, a cold start waits for
@@ -41,7 +43,7 @@ def frame_latencies(run, readout_s=READOUT_S):
     ``localizer``, ``exposure_to_pose``, ``imu_compensator`` (empty without a receive log).
     """
     empty = {k: [] for k in ('decoder', 'spot_locator', 'localizer', 'exposure_to_pose',
-                             'imu_compensator')}
+                             'readout_wait', 'frame_to_pose', 'imu_compensator')}
     if run.bag_path is None or not (run.bag_path / RECEIVE_TIMES_FILE).exists():
         return empty
     rows = read_receive_times(run.bag_path)
@@ -79,6 +81,8 @@ def frame_latencies(run, readout_s=READOUT_S):
         out['localizer'].append((poses_sent[k] - inputs) * 1e-6)
         out['exposure_to_pose'].append(
             (poses_sent[k] - ready_wall + (readout_ns - offset_ns)) * 1e-6)
+        out['readout_wait'].append((readout_ns - offset_ns) * 1e-6)
+        out['frame_to_pose'].append((poses_sent[k] - ready_wall) * 1e-6)
     raw = _by_stamp(rows, '/imu/data_raw')
     for stamp, sent in _by_stamp(rows, '/imu/data').items():
         if stamp in raw:
