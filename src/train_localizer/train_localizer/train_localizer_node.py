@@ -620,17 +620,27 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             received_ns = self.get_clock().now().nanoseconds
         for _, sample in self._guarded('imu/data', conversions.stamp_to_ns(msg.header.stamp),
                                        msg):
-            self._publish(self.localizer.add_imu(conversions.imu_from_msg(sample),
-                                                 received_ns))
+            start = time.perf_counter()
+            report = self.localizer.add_imu(conversions.imu_from_msg(sample), received_ns)
+            if report.fixes:
+                # a frame that waited for this sample (_on_spots): its fixes' cost
+                self._fix_ms.append((time.perf_counter() - start) * 1e3 / len(report.fixes))
+            self._publish(report)
 
     def _drain(self):
         """Hand the localizer every camera_info received so far (every one in order: the
         last one of a batch may be a bad one, which must not hide the good one before it)
         and the IMU samples received so far that are not too far ahead of the frames.
         """
+        self._drain_camera_info()
+        self._drain_imu()
+
+    def _drain_camera_info(self):
         for index, sub in enumerate(self._info_polled):
             for info in sub.take_all():
                 self._on_camera_info(index, info)
+
+    def _drain_imu(self):
         if self._imu_polled is not None:
             msgs = self._imu_polled.take_all()
             if msgs:
@@ -659,22 +669,32 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             return None
 
     def _on_spots(self, msg):
+        """A frame's spot pairs. The frame goes to the core before the IMU samples taken
+        since the last poll: its fixes wait in the core only for the samples up to their
+        exposure (usually handed on by the poll already), so the pose after the fix is
+        published at once and the newer samples follow, instead of the other way round
+        (measured: docs/arch/train_localizer.md, "Latency: the frame before the IMU samples
+        behind it"). The core puts every observation where its stamp belongs, whatever
+        the order it receives them in.
+        """
         records = self._records(msg, 'spots/pairs', SPOT_FIELDS)
         if records is not None:
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._imu_pacer.on_frame(stamp, self._now_s())     # before the IMU it releases
-            self._drain()
+            self._drain_camera_info()
             for stamp_ns, rec in self._guarded('spots/pairs', stamp, records):
                 self._process(self.joiner.add_spots(stamp_ns, rec, self._now_s()))
+            self._drain_imu()     # after the frame: see _on_spots
 
     def _on_lamps(self, msg):
         records = self._records(msg, 'vlc/lamps', LAMP_FIELDS)
         if records is not None:
             stamp = conversions.stamp_to_ns(msg.header.stamp)
             self._imu_pacer.on_frame(stamp, self._now_s())     # before the IMU it releases
-            self._drain()
+            self._drain_camera_info()
             for stamp_ns, rec in self._guarded('vlc/lamps', stamp, records):
                 self._process(self.joiner.add_lamps(stamp_ns, rec, self._now_s()))
+            self._drain_imu()     # after the frame: see _on_spots
 
     def _on_curvature(self, msg):
         """A curvature match: chainage and its variance along the track, to the aid."""
