@@ -182,7 +182,7 @@ def main(argv=None):
                              'through the processing nodes, one at a time, after everything '
                              'else (the rig\'s renderer is not on the cores); and run the '
                              f'whole live graph alone at real time, {LIVE_LATENCY_RUNS} runs '
-                             'per speed (OUT/latency/live)')
+                             'per speed (OUT/latency/live/<run>)')
     parser.add_argument('--faults', action='store_true',
                         help='also run the fault protocol (evaluation/faults.py: CPU overload, '
                              'dropouts, stalls, killed nodes, clock steps, malformed input), '
@@ -352,9 +352,10 @@ def main(argv=None):
             # the whole live graph (rig included), alone and at real time: a run in which
             # a node fell behind is kept as it is and counted, not rerun
             for scenario in live_latency_scenarios():
+                group = f'{LIVE_GROUP}/{scenario.name}'
                 live_alone += scenarios.run_protocols(
-                    {LIVE_GROUP: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
-                    rescore=args.rescore, retries=0)[LIVE_GROUP]
+                    {group: [scenario]}, out, lamp_map, lanes=1, spawn=args.spawn,
+                    rescore=args.rescore, retries=0)[group]
             total += len(latency_results) + len(live_alone)
             if latency_results and not args.rescore:
                 report.append_latency_run(out, command, report.latency_table(latency_results)[1],

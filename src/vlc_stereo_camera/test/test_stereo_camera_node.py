@@ -176,3 +176,20 @@ def test_clock_tail_ends_on_its_last_tick(context):
 def test_invalid_parameters_fail_at_construction(context, name, value, error):
     with pytest.raises(error):
         StereoCameraNode(context=context, parameter_overrides=[Parameter(name, value=value)])
+
+
+def test_render_gap_only_when_paced_and_ahead():
+    from types import SimpleNamespace
+
+    from vlc_stereo_camera.stereo_camera_node import render_gap_wall_s
+    cfg = SimpleNamespace(realtime_factor=1.0, render_gap_s=0.015)
+    assert render_gap_wall_s(cfg, True) == pytest.approx(0.015)
+    # a renderer that is behind (its queue not full) renders at once
+    assert render_gap_wall_s(cfg, False) == 0.0
+    # simulated seconds: twice as long in wall time at half speed; none unpaced or off
+    assert render_gap_wall_s(SimpleNamespace(realtime_factor=0.5, render_gap_s=0.015),
+                             True) == pytest.approx(0.03)
+    assert render_gap_wall_s(SimpleNamespace(realtime_factor=0.0, render_gap_s=0.015),
+                             True) == 0.0
+    assert render_gap_wall_s(SimpleNamespace(realtime_factor=1.0, render_gap_s=0.0),
+                             True) == 0.0

@@ -22,7 +22,10 @@ simulated clock and publishes (relative names unless stated):
 
 Threads: rendering runs on a worker thread that fills a small queue; a pacing thread
 publishes frames and clock ticks in simulated-time order, at ``realtime_factor`` ×
-real time (0 = as fast as possible). A frame is published when its last row has been
+real time (0 = as fast as possible). Paced, with the frames ahead in hand, the renderer
+starts each frame ``render_gap_s`` after a frame is published: a real camera takes no
+CPU from the receivers while they work on the frame it just sent, and the renderer
+should not either. A frame is published when its last row has been
 read out (t0 + (H−1)·row_time + exposure). The executor thread only serves the
 diagnostics timer and the shutdown guard condition, so it stays responsive.
 With ``duration_s`` > 0 the node publishes every frame and tick with t < duration_s and
@@ -175,7 +178,22 @@ NODE_PARAMETERS = (
     ('wait_for_clock_subscribers', 0, _desc('Also hold it until /clock has this many '
                                             'matched subscribers (the IMU following it).',
                                             0, 100, integer=True)),
+    ('render_gap_s', 0.015, _desc('Paced, with the frames ahead in hand: the renderer waits '
+                                  'this long (simulated s) after a frame is published '
+                                  'before it renders the next, so its CPU falls between '
+                                  'the frames, not on the receivers\' work on the frame '
+                                  'just sent; 0 = at once.', 0.0, 1.0)),
 )
+
+
+def render_gap_wall_s(cfg, frames_in_hand):
+    """Wall seconds the renderer waits after a frame was published before it renders the
+    next: ``render_gap_s`` of simulated time when paced and the frames ahead are in hand
+    (``frames_in_hand``: the queue is full); 0 unpaced or when the renderer is behind.
+    """
+    if cfg.realtime_factor > 0.0 and cfg.render_gap_s > 0.0 and frames_in_hand:
+        return cfg.render_gap_s / cfg.realtime_factor
+    return 0.0
 
 
 @dataclass
@@ -222,6 +240,7 @@ class StereoCameraNodeConfig:
     clock_tail_s: float
     wait_for_subscribers: int
     wait_for_clock_subscribers: int
+    render_gap_s: float
 
     def nominal_camera(self):
         """The stereo camera as designed (an installation's nominal)."""
@@ -374,6 +393,14 @@ class StereoCameraNode(Node):
                     self._lamps_in_view = len(frame.truth)
                 self._put(frame)
                 k += 1
+                # The put returned because the pacing took a frame, i.e. just after it
+                # published one. With the queue full again (the frames ahead are in hand)
+                # the next render waits, so that it does not compete with the receivers
+                # for the cores while they process the frame just sent; a renderer that
+                # is behind (queue not full) goes on at once.
+                wait_s = render_gap_wall_s(cfg, self._frames.full())
+                if wait_s > 0.0:
+                    self._stop.wait(wait_s)
         except Exception as exc:  # noqa: BLE001 — report any renderer failure, then stop
             self.get_logger().error(f'rendering failed: {exc!r}')
             self.exit_code = 1
