@@ -182,3 +182,53 @@ def test_partial_packet_publishes_the_data_bits_it_has_read():
             partial += 0 < asm.bits_known < 24
         assert asm.uid == uid and asm.data_mask == 0xFFFFFF and asm.data_word == true_word
     assert partial > 20
+
+
+def _entering_lamp(seed, misread=4, drop_misread=False, frames=40):
+    """A lamp whose first ``misread`` frames show a clipped spot (10 rows, six of them
+    read "off", as a far lamp entering at the image's top edge), then whole spots (20
+    rows): (uid, decided uid, frame of the decision).
+    """
+    rng = np.random.default_rng(seed)
+    uid = int(rng.integers(0, 1 << 16))
+    signal = synth.LampSignal(uid, chip_rate_hz=1e4 * (1 + rng.uniform(-1e-4, 1e-4)),
+                              phase_s=rng.uniform(0, 1))
+    asm = PacketAssembler(CFG, 0)
+    first = None
+    for k in range(frames):
+        stamp, rows, y, w = fragment(signal, k, int(rng.integers(50, 600)),
+                                     10 if k < misread else 20, rng)
+        if k < misread:
+            if drop_misread:
+                continue
+            y = y.copy()
+            y[2:8] = 0.0
+        asm.add(stamp, rows, y, w)
+        if asm.uid is not None and first is None:
+            first = k
+    return uid, asm.uid, first
+
+
+def test_misread_first_fragments_are_forgotten_and_the_lamp_decided_as_without_them(
+        monkeypatch):
+    """The misread fragments contradict the later ones: the track forgets them and
+    decides at the frame it would have without them; kept (forgetting off) they held
+    the decision back or stopped it. Never a wrong UID either way.
+    """
+    def outcomes():
+        out = []
+        for seed in range(30):
+            uid, clean, clean_at = _entering_lamp(seed, drop_misread=True)
+            if clean != uid:
+                continue        # this draw does not decode in 40 frames even without them
+            truth, decided, at = _entering_lamp(seed)
+            assert decided in (None, truth)
+            out.append(decided == truth and at == clean_at)
+        return out
+
+    with_forgetting = outcomes()
+    monkeypatch.setattr(assembly, 'FORGET_AFTER_INCONSISTENT', 10 ** 9)
+    without = outcomes()
+    assert len(with_forgetting) >= 20
+    assert np.mean(with_forgetting) >= 0.85
+    assert np.mean(without) <= 0.5

@@ -74,6 +74,11 @@ OVERLAP_AFTER_MISFITS = 2
 FOUNDERS = 2
 # fragments kept for alignment by overlap (each new one is matched against their fold)
 MAX_CONTENT_FRAGMENTS = 30
+# an undecided track whose fragments contradict each other on the clock for this many
+# frames in a row forgets its oldest ones until the rest agree (keeping at least
+# MIN_KEPT_FRAGMENTS): a lamp entering at the image's edge leaves clipped, misread stripes
+FORGET_AFTER_INCONSISTENT = 2
+MIN_KEPT_FRAGMENTS = 3
 
 
 @dataclass(eq=False)
@@ -202,6 +207,8 @@ class PacketAssembler:
         self.chips_seen = 0
         self.contradictions = 0
         self.misfits = 0
+        self.inconsistent_frames = 0  # frames in a row with an inconsistent fold, undecided
+        self.forgotten = 0            # fragments forgotten for it (_forget_inconsistent)
         self.fold = None             # (54,) packet chips on the clock's fold
         self.content_fold = None     # (54,) packet chips of the fragments placed by overlap
         self.placed = {}             # fragment -> its shift in the content fold
@@ -242,6 +249,38 @@ class PacketAssembler:
             # it places check the spots offered to the track) but nothing is left to
             # decide
             self._assemble()
+            self._forget_inconsistent()
+
+    def _forget_inconsistent(self):
+        """Forget the oldest fragments of an undecided track whose fold has been
+        inconsistent on the clock for ``FORGET_AFTER_INCONSISTENT`` frames, one at a time
+        until the rest agree or ``MIN_KEPT_FRAGMENTS`` are left.
+
+        A lamp that enters the image at its top or bottom edge is seen for its first
+        frames as a spot clipped to a few rows, whose stripes can read wrong (with the
+        lens's distortion and vignetting a far lamp stays in a raw image's corner for a
+        third of a second); kept, they contradict every later fragment, the lamp is
+        decided only once the track has left the clock for alignment by content, and
+        that costs 10–20 ms a frame. Forgetting weakens no check of a decision: the
+        kept fragments must still agree, fit the clock and pass the CRC; the track's
+        founders are then its oldest kept fragments. Alignment by content (an off-spec
+        lamp clock) is left as it is.
+        """
+        if self.status != STATUS_INCONSISTENT or self.content_mode:
+            self.inconsistent_frames = 0
+            return
+        self.inconsistent_frames += 1
+        if self.inconsistent_frames < FORGET_AFTER_INCONSISTENT:
+            return
+        while (self.status == STATUS_INCONSISTENT and self.uid is None
+               and not self.content_mode and len(self.fragments) > MIN_KEPT_FRAGMENTS):
+            self.fragments.pop(0)
+            self.forgotten += 1
+            self._rebuild_clock()
+            self._assemble()
+        LOG.debug('inconsistent fold: %d oldest fragments forgotten, %d kept',
+                  self.forgotten, len(self.fragments))
+        self.inconsistent_frames = 0
 
     def accepts(self, stamp_ns, rows, level, weight, tight=False):
         """Whether a new spot's stripes can be this lamp's.
