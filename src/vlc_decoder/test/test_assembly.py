@@ -232,3 +232,27 @@ def test_misread_first_fragments_are_forgotten_and_the_lamp_decided_as_without_t
     assert len(with_forgetting) >= 20
     assert np.mean(with_forgetting) >= 0.85
     assert np.mean(without) <= 0.5
+
+
+def test_forgetting_is_bounded_on_a_track_that_never_agrees():
+    """Every fragment misread: the track forgets at most MAX_FORGOTTEN of its first
+    fragments, none once it holds more than FORGET_MAX_KEPT (each forgetting refits the
+    clock and reads every kept fragment again), and decides nothing.
+    """
+    rng = np.random.default_rng(5)
+    signal = synth.LampSignal(0x1234, chip_rate_hz=1e4, phase_s=0.3)
+    asm = PacketAssembler(CFG, 0)
+    held = []
+    for k in range(60):
+        stamp, rows, y, w = fragment(signal, k, int(rng.integers(50, 600)), 20, rng)
+        y = y.copy()
+        y[2:8] = 0.0
+        asm.add(stamp, rows, y, w)
+        held.append((len(asm.fragments), asm.forgotten))
+    assert asm.uid is None
+    assert 0 < asm.forgotten <= assembly.MAX_FORGOTTEN
+    assert len(asm.fragments) == 60 - asm.forgotten
+    # nothing forgotten by a frame that found the track holding more than the bound
+    for (before, _), (_, forgotten_after) in zip(held, held[1:]):
+        if before + 1 > assembly.FORGET_MAX_KEPT:
+            assert forgotten_after == held[-1][1]

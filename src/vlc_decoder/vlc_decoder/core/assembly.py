@@ -75,9 +75,16 @@ FOUNDERS = 2
 # fragments kept for alignment by overlap (each new one is matched against their fold)
 MAX_CONTENT_FRAGMENTS = 30
 # an undecided track whose fragments contradict each other on the clock for this many
-# frames in a row forgets its oldest ones until the rest agree (keeping at least
-# MIN_KEPT_FRAGMENTS): a lamp entering at the image's edge leaves clipped, misread stripes
+# frames in a row forgets its oldest ones until the rest agree: a lamp entering at the
+# image's edge leaves clipped, misread stripes (_forget_inconsistent). Bounded: at most
+# FORGET_PER_FRAME a frame (each costs a refit of the clock and a read of every kept
+# fragment: 15 ms with 120 kept), only while the track holds at most
+# FORGET_MAX_KEPT fragments (a young track: its entry frames), at most MAX_FORGOTTEN in
+# its life, and never below MIN_KEPT_FRAGMENTS
 FORGET_AFTER_INCONSISTENT = 2
+FORGET_PER_FRAME = 2
+FORGET_MAX_KEPT = 20
+MAX_FORGOTTEN = 12
 MIN_KEPT_FRAGMENTS = 3
 
 
@@ -252,9 +259,9 @@ class PacketAssembler:
             self._forget_inconsistent()
 
     def _forget_inconsistent(self):
-        """Forget the oldest fragments of an undecided track whose fold has been
-        inconsistent on the clock for ``FORGET_AFTER_INCONSISTENT`` frames, one at a time
-        until the rest agree or ``MIN_KEPT_FRAGMENTS`` are left.
+        """Forget the oldest fragments of a young, undecided track whose fold has been
+        inconsistent on the clock for ``FORGET_AFTER_INCONSISTENT`` frames in a row, one
+        at a time until the rest agree (bounds: see ``FORGET_PER_FRAME``).
 
         A lamp that enters the image at its top or bottom edge is seen for its first
         frames as a spot clipped to a few rows, whose stripes can read wrong (with the
@@ -264,7 +271,9 @@ class PacketAssembler:
         that costs 10–20 ms a frame. Forgetting weakens no check of a decision: the
         kept fragments must still agree, fit the clock and pass the CRC; the track's
         founders are then its oldest kept fragments. Alignment by content (an off-spec
-        lamp clock) is left as it is.
+        lamp clock) is left as it is, and so is an older track: there the fold's
+        inconsistency is not its entry, and every refit would read every fragment
+        again.
         """
         if self.status != STATUS_INCONSISTENT or self.content_mode:
             self.inconsistent_frames = 0
@@ -272,15 +281,17 @@ class PacketAssembler:
         self.inconsistent_frames += 1
         if self.inconsistent_frames < FORGET_AFTER_INCONSISTENT:
             return
-        while (self.status == STATUS_INCONSISTENT and self.uid is None
-               and not self.content_mode and len(self.fragments) > MIN_KEPT_FRAGMENTS):
+        for _ in range(FORGET_PER_FRAME):
+            if (self.status != STATUS_INCONSISTENT or self.uid is not None
+                    or self.content_mode or self.forgotten >= MAX_FORGOTTEN
+                    or not MIN_KEPT_FRAGMENTS < len(self.fragments) <= FORGET_MAX_KEPT):
+                break
             self.fragments.pop(0)
             self.forgotten += 1
             self._rebuild_clock()
             self._assemble()
-        LOG.debug('inconsistent fold: %d oldest fragments forgotten, %d kept',
-                  self.forgotten, len(self.fragments))
-        self.inconsistent_frames = 0
+            LOG.debug('inconsistent fold: the oldest fragment forgotten (%d so far), %d '
+                      'kept', self.forgotten, len(self.fragments))
 
     def accepts(self, stamp_ns, rows, level, weight, tight=False):
         """Whether a new spot's stripes can be this lamp's.
