@@ -20,6 +20,11 @@ rm -f /dev/shm/fastrtps_* /dev/shm/sem.fastrtps_* 2>/dev/null || true
 # The run log lists the commands that recorded the bags: this evaluation re-records them;
 # the latency log lists the latency replays from this evaluation on (re-runs append).
 rm -f "$out/runs.jsonl" "$out/latency_runs.jsonl"
+# Every step's camera nodes share one memo of their start-up arrays (lens maps, noise
+# banks: the same few installations and seeds recur); emptied here, so it holds only
+# this evaluation's entries (a few GB at most).
+export VLC_RIG_CACHE_DIR="$(realpath -m "$out")/rig_cache"
+rm -rf "$VLC_RIG_CACHE_DIR"
 ros2run vlc_evaluation run_evaluation --protocol full --latency --out "$out"
 ros2run vlc_evaluation run_evaluation --protocol companions --ablations \
     --ablation-trials 1 --ablation-runs 1 --out "$out"

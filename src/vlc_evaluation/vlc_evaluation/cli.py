@@ -29,6 +29,7 @@ from vlc_evaluation import (
     faults,
     passes,
     report,
+    runner,
     scenarios,
 )
 from vlc_evaluation.graph_runner import SPAWN_MODES
@@ -260,6 +261,9 @@ def main(argv=None):
     command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
+    # the camera nodes memoise their start-up arrays (lens maps, noise banks) here: the
+    # scenarios draw the same few installations and seeds again and again
+    os.environ.setdefault(runner.RIG_CACHE_ENV, str((out / 'rig_cache').resolve()))
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
     static, dynamic = build_scenarios(args)
     groups = {'static': static, 'dynamic': dynamic}

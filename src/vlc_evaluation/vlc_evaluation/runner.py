@@ -66,6 +66,9 @@ REPLAYED_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw',
                    '/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data_raw',
                    '/ground_truth/pose', '/ground_truth/spots') + SBS_TOPICS
 
+# environment variable naming the camera nodes' precompute_cache_dir (run_evaluation sets
+# it to <out>/rig_cache unless given; unset: no memo)
+RIG_CACHE_ENV = 'VLC_RIG_CACHE_DIR'
 IMU_TAIL_S = 0.1          # IMU samples beyond the last camera frame (poses past it)
 DRAIN_GRACE_S = 0.25      # after the last pose is seen: let the recorder take it too
 POSE_QUIET_S = 0.3        # inputs done and no pose for this long: the localizer is done
@@ -273,6 +276,7 @@ def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
     graph.start('vlc_stereo_camera', 'stereo_camera_node',
                 dict(rig, duration_s=float(scenario.duration_s), clock_tail_s=IMU_TAIL_S,
                      wait_for_subscribers=camera_subscribers,
+                     precompute_cache_dir=os.environ.get(RIG_CACHE_ENV, ''),
                      **{**(camera_params or {}),
                         **scenario.node_params.get('stereo_camera_node', {})}),
                 rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])

@@ -100,6 +100,7 @@ from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.parameters import descriptor as _desc
 from vlc_common.process import keep_large_buffers, run_node, spin_until_finished
 from vlc_stereo_camera import conversions
+from vlc_stereo_camera.core import precompute_cache
 from vlc_stereo_camera.core.installation import NominalCamera, draw_installation
 from vlc_stereo_camera.core.renderer import RendererConfig, StereoRenderer
 from vlc_stereo_camera.core.sensor_noise import OpticsConfig, SensorConfig
@@ -183,6 +184,10 @@ NODE_PARAMETERS = (
                                   'before it renders the next, so its CPU falls between '
                                   'the frames, not on the receivers\' work on the frame '
                                   'just sent; 0 = at once.', 0.0, 1.0)),
+    ('precompute_cache_dir', '', _desc("Directory of the disk memo of the renderer's "
+                                       'start-up arrays (lens maps, noise banks; the same '
+                                       'arrays, computed once per installation and seed); '
+                                       "'' = off.", ptype=_STR)),
 )
 
 
@@ -241,6 +246,7 @@ class StereoCameraNodeConfig:
     wait_for_subscribers: int
     wait_for_clock_subscribers: int
     render_gap_s: float
+    precompute_cache_dir: str
 
     def nominal_camera(self):
         """The stereo camera as designed (an installation's nominal)."""
@@ -290,6 +296,7 @@ class StereoCameraNode(Node):
                 descriptor).value
         values['calibration_paths'] = tuple(values['calibration_paths'] or ())
         self.config = cfg = StereoCameraNodeConfig(**values)
+        precompute_cache.set_directory(cfg.precompute_cache_dir)
         trajectory = self.scenario.trajectory()
         lamp_map = LampMap.load(resolve_lamp_map_path(cfg.lamp_map_path,
                                                       self.scenario.alignment))

@@ -33,11 +33,13 @@ mapping monotonic; inside, the projection is OpenCV's model exactly.
 """
 from dataclasses import dataclass, field
 import functools
+import sys
 
 import numpy as np
 
 from vlc_common.core.camera import CameraModel, StereoCameraModel
 from vlc_common.core.rotations import quat_from_rotvec, quat_to_matrix
+from vlc_stereo_camera.core import precompute_cache
 
 #: Most Newton iterations of the undistortion of the sensor grid; it stops once no point
 #: moves by more than 1e-13 (normalized, ~1e-10 px); 5 do on the 3.9 mm M12 lens (the
@@ -270,31 +272,15 @@ class LensMap:
     def __init__(self, camera, width, height, pad_px=8, vignetting=True):
         self.camera = camera
         self.width, self.height, self.pad = int(width), int(height), int(pad_px)
-        d = camera.distortion
-        u = np.arange(-self.pad, self.width + self.pad, dtype=float)
-        v = np.arange(-self.pad, self.height + self.pad, dtype=float)
-        xd = np.broadcast_to(((u - camera.cx) / camera.fx)[None, :], (len(v), len(u))).copy()
-        yd = np.broadcast_to(((v - camera.cy) / camera.fy)[:, None], (len(v), len(u))).copy()
-        x, y = _undistort(xd, yd, d)
-        ex, ey = _distort(x, y, d)
-        residual_px = max(np.abs(ex - xd).max() * camera.fx, np.abs(ey - yd).max() * camera.fy)
-        if not residual_px <= _MAP_TOLERANCE_PX:
-            raise ValueError(f'LensMap: the undistortion of the sensor did not converge '
-                             f'(residual {residual_px:.3g} px); is the distortion monotonic '
-                             'over the field of view?')
-        a, b, c, e = _distort_jacobian(x, y, d)
-        det = a * e - b * c
-        if not np.all(det > 0.0):
-            raise ValueError('LensMap: the distortion folds over inside the field of view')
-        r2 = x * x + y * y
-        self.r2_max = min(2.25 * float(r2.max()), 0.95 * _fold_r2(d))
-        self.map_x = (camera.fx * x + camera.cx).astype(np.float32)
-        self.map_y = (camera.fy * y + camera.cy).astype(np.float32)
-        cos4 = 1.0 / (1.0 + r2) ** 2 if vignetting else 1.0
-        self.illumination = (cos4 / det).astype(np.float32)
-        # ∂(ideal px)/∂(sensor px) = diag(f)·J⁻¹·diag(1/f), J = ∂(xd, yd)/∂(x, y)
-        self.derivatives = tuple((v / det).astype(np.float32) for v in (
-            e, -b * camera.fx / camera.fy, -c * camera.fy / camera.fx, a))
+        # the same arrays from the disk memo when an earlier node computed them
+        # (precompute_cache: off unless the camera node's precompute_cache_dir is set)
+        a = precompute_cache.cached(
+            'lens_map', (camera, self.width, self.height, self.pad, bool(vignetting),
+                         precompute_cache.source_digest(sys.modules[__name__])),
+            lambda: _lens_map_arrays(camera, self.width, self.height, self.pad, vignetting))
+        self.r2_max = float(a['r2_max'])
+        self.map_x, self.map_y, self.illumination = a['map_x'], a['map_y'], a['illumination']
+        self.derivatives = (a['d_xu'], a['d_xv'], a['d_yu'], a['d_yv'])
 
     def window(self, u0, u1, v0, v1):
         """Slices of the map arrays for sensor pixels u0 ≤ u < u1, v0 ≤ v < v1."""
@@ -314,6 +300,36 @@ class LensMap:
         c = self.camera
         xd, yd = _distort(x, y, c.distortion, self.r2_max)
         return c.fx * xd + c.cx, c.fy * yd + c.cy
+
+
+def _lens_map_arrays(camera, width, height, pad, vignetting):
+    """The arrays of a :class:`LensMap` (see there), as a dict."""
+    d = camera.distortion
+    u = np.arange(-pad, width + pad, dtype=float)
+    v = np.arange(-pad, height + pad, dtype=float)
+    xd = np.broadcast_to(((u - camera.cx) / camera.fx)[None, :], (len(v), len(u))).copy()
+    yd = np.broadcast_to(((v - camera.cy) / camera.fy)[:, None], (len(v), len(u))).copy()
+    x, y = _undistort(xd, yd, d)
+    ex, ey = _distort(x, y, d)
+    residual_px = max(np.abs(ex - xd).max() * camera.fx, np.abs(ey - yd).max() * camera.fy)
+    if not residual_px <= _MAP_TOLERANCE_PX:
+        raise ValueError(f'LensMap: the undistortion of the sensor did not converge '
+                         f'(residual {residual_px:.3g} px); is the distortion monotonic '
+                         'over the field of view?')
+    a, b, c, e = _distort_jacobian(x, y, d)
+    det = a * e - b * c
+    if not np.all(det > 0.0):
+        raise ValueError('LensMap: the distortion folds over inside the field of view')
+    r2 = x * x + y * y
+    cos4 = 1.0 / (1.0 + r2) ** 2 if vignetting else 1.0
+    # ∂(ideal px)/∂(sensor px) = diag(f)·J⁻¹·diag(1/f), J = ∂(xd, yd)/∂(x, y)
+    d_xu, d_xv, d_yu, d_yv = ((w / det).astype(np.float32) for w in (
+        e, -b * camera.fx / camera.fy, -c * camera.fy / camera.fx, a))
+    return {'r2_max': np.float64(min(2.25 * float(r2.max()), 0.95 * _fold_r2(d))),
+            'map_x': (camera.fx * x + camera.cx).astype(np.float32),
+            'map_y': (camera.fy * y + camera.cy).astype(np.float32),
+            'illumination': np.asarray(cos4 / det).astype(np.float32),
+            'd_xu': d_xu, 'd_xv': d_xv, 'd_yu': d_yu, 'd_yv': d_yv}
 
 
 @functools.lru_cache(maxsize=4)

@@ -82,6 +82,7 @@ import numpy as np
 from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig
 from vlc_common.core.protocol import PACKET_CHIPS
 from vlc_common.core.rotations import rpy_to_matrix
+from vlc_stereo_camera.core import precompute_cache, sensor_noise
 from vlc_stereo_camera.core.optics_truth import OpticsTruth, lens_map
 from vlc_stereo_camera.core.sensor_noise import (
     FixedPattern,
@@ -391,8 +392,17 @@ class StereoRenderer:
         self.sensor = SensorModel(config.sensor, config.exposure_s, noise=config.sensor_noise)
         self._background_e = self.sensor.background_electrons(self.height, self.width)
         bank_rng = np.random.default_rng([self.seed, 0xBA4C])
+        # the banks come from the disk memo when an earlier node drew the same ones
+        # (precompute_cache: off unless the camera node's precompute_cache_dir is set)
+        bank_key = (self.seed, config.sensor, float(config.exposure_s),
+                    bool(config.sensor_noise), self.height, self.width,
+                    precompute_cache.array_digest(self._background_e),
+                    precompute_cache.source_digest(sensor_noise))
         if config.fixed_pattern is None:
-            self._bank = self.sensor.background_bank(self._background_e, bank_rng)
+            self._bank = precompute_cache.cached(
+                'noise_bank', bank_key,
+                lambda: {'bank': self.sensor.background_bank(self._background_e,
+                                                             bank_rng)})['bank']
             self._patterns = self._banks = None
         else:
             # Two sensors, two patterns: each camera has its own bank, drawn with its pattern.
@@ -400,8 +410,17 @@ class StereoRenderer:
                                            config.exposure_s,
                                            np.random.default_rng([self.seed, 0xF1ED, cam]))
                               for cam in (0, 1)]
-            self._banks = [self.sensor.pattern_bank(self._background_e, bank_rng, p)
-                           for p in self._patterns]
+
+            def banks():
+                out = {}
+                for cam, pattern in enumerate(self._patterns):
+                    out[f'frames{cam}'], out[f'rows{cam}'] = self.sensor.pattern_bank(
+                        self._background_e, bank_rng, pattern)
+                return out
+            b = precompute_cache.cached(
+                'pattern_banks', bank_key + (config.fixed_pattern, precompute_cache.array_digest(
+                    *(a for p in self._patterns for a in (p.gain, p.offset_e)))), banks)
+            self._banks = [(b['frames0'], b['rows0']), (b['frames1'], b['rows1'])]
         self._noise = (NoiseTable(config.noise_table_size,
                                   np.random.default_rng([self.seed, 0x7AB1]))
                        if config.noise_table_size > 0 else None)
