@@ -261,9 +261,6 @@ def main(argv=None):
     command = 'run_evaluation ' + ' '.join(argv if argv is not None else sys.argv[1:])
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
-    # the camera nodes memoise their start-up arrays (lens maps, noise banks) here: the
-    # scenarios draw the same few installations and seeds again and again
-    os.environ.setdefault(runner.RIG_CACHE_ENV, str((out / 'rig_cache').resolve()))
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
     static, dynamic = build_scenarios(args)
     groups = {'static': static, 'dynamic': dynamic}
@@ -334,6 +331,10 @@ def main(argv=None):
             args.departures_profile, realtime_factor=args.realtime_factor))
     total = sum(len(g) for g in groups.values()) + len(fault_scenarios)
     started = time.monotonic()
+    # the camera nodes memoise their start-up arrays (lens maps, noise banks) here: the
+    # scenarios draw the same few installations and seeds again and again (set once the
+    # arguments are valid: run_evaluation is the process's main)
+    os.environ.setdefault(runner.RIG_CACHE_ENV, str((out / 'rig_cache').resolve()))
 
     def progress(done, _, name):
         _progress(done, total, name, started)
