@@ -275,8 +275,8 @@ class LensMap:
         # the same arrays from the disk memo when an earlier node computed them
         # (precompute_cache: off unless the camera node's precompute_cache_dir is set)
         a = precompute_cache.cached(
-            'lens_map', (camera, self.width, self.height, self.pad, bool(vignetting),
-                         precompute_cache.source_digest(sys.modules[__name__])),
+            'lens_map', lambda: (camera, self.width, self.height, self.pad, bool(vignetting),
+                                 precompute_cache.source_digest(sys.modules[__name__])),
             lambda: _lens_map_arrays(camera, self.width, self.height, self.pad, vignetting))
         self.r2_max = float(a['r2_max'])
         self.map_x, self.map_y, self.illumination = a['map_x'], a['map_y'], a['illumination']

@@ -66,10 +66,13 @@ def array_digest(*arrays):
 def cached(kind, key, compute):
     """``compute()`` — a dict of name: ndarray — or the entry of an earlier call with the
     same ``kind`` and ``key`` (any value with an exact ``repr``: numbers, strings,
-    tuples, frozen dataclasses, digests).
+    tuples, dataclasses, digests; or a function returning it, called only when the memo
+    is on, so digests of large arrays cost nothing without it).
     """
     if _directory is None:
         return compute()
+    if callable(key):
+        key = key()
     name = hashlib.sha256(repr((CACHE_VERSION, kind, key)).encode()).hexdigest()[:40]
     path = _directory / f'{kind}-{name}.npz'
     try:

@@ -394,7 +394,8 @@ class StereoRenderer:
         bank_rng = np.random.default_rng([self.seed, 0xBA4C])
         # the banks come from the disk memo when an earlier node drew the same ones
         # (precompute_cache: off unless the camera node's precompute_cache_dir is set)
-        bank_key = (self.seed, config.sensor, float(config.exposure_s),
+        def bank_key():
+            return (self.seed, config.sensor, float(config.exposure_s),
                     bool(config.sensor_noise), self.height, self.width,
                     precompute_cache.array_digest(self._background_e),
                     precompute_cache.source_digest(sensor_noise))
@@ -418,8 +419,9 @@ class StereoRenderer:
                         self._background_e, bank_rng, pattern)
                 return out
             b = precompute_cache.cached(
-                'pattern_banks', bank_key + (config.fixed_pattern, precompute_cache.array_digest(
-                    *(a for p in self._patterns for a in (p.gain, p.offset_e)))), banks)
+                'pattern_banks', lambda: bank_key() + (
+                    config.fixed_pattern, precompute_cache.array_digest(
+                        *(a for p in self._patterns for a in (p.gain, p.offset_e)))), banks)
             self._banks = [(b['frames0'], b['rows0']), (b['frames1'], b['rows1'])]
         self._noise = (NoiseTable(config.noise_table_size,
                                   np.random.default_rng([self.seed, 0x7AB1]))
