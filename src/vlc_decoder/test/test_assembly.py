@@ -184,6 +184,13 @@ def test_partial_packet_publishes_the_data_bits_it_has_read():
     assert partial > 20
 
 
+def _misread(y):
+    """A clipped spot's levels: six of its rows read "off"."""
+    y = y.copy()
+    y[2:8] = 0.0
+    return y
+
+
 def _entering_lamp(seed, misread=4, drop_misread=False, frames=40):
     """A lamp whose first ``misread`` frames show a clipped spot (10 rows, six of them
     read "off", as a far lamp entering at the image's top edge), then whole spots (20
@@ -201,8 +208,7 @@ def _entering_lamp(seed, misread=4, drop_misread=False, frames=40):
         if k < misread:
             if drop_misread:
                 continue
-            y = y.copy()
-            y[2:8] = 0.0
+            y = _misread(y)
         asm.add(stamp, rows, y, w)
         if asm.uid is not None and first is None:
             first = k
@@ -245,9 +251,7 @@ def test_forgetting_is_bounded_on_a_track_that_never_agrees():
     held = []
     for k in range(60):
         stamp, rows, y, w = fragment(signal, k, int(rng.integers(50, 600)), 20, rng)
-        y = y.copy()
-        y[2:8] = 0.0
-        asm.add(stamp, rows, y, w)
+        asm.add(stamp, rows, _misread(y), w)
         held.append((len(asm.fragments), asm.forgotten))
     assert asm.uid is None
     assert 0 < asm.forgotten <= assembly.MAX_FORGOTTEN

@@ -38,10 +38,6 @@ def set_directory(path):
     _directory = pathlib.Path(path) if path else None
 
 
-def directory():
-    return _directory
-
-
 def source_digest(*modules):
     """SHA-256 of the source files of ``modules`` (computed once per module)."""
     h = hashlib.sha256()
