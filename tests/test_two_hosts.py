@@ -7,7 +7,9 @@ processing computer (``vlc_evaluation.benchmarks.two_hosts``, the harness
 ``spot_locator_node``, ``vlc_decoder_node`` and two probes (images; IMU). Everything
 talks over UDP through ``config/fastdds_two_hosts.xml`` with
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` on the test's own DDS domain; where ``tc``
-accepts a token bucket, the veth is shaped to 1 Gbit/s (a train Ethernet port).
+accepts a token bucket, the veth is shaped to 1 Gbit/s (a train Ethernet port) behind
+a NIC's default send queue, and both namespaces get the IP-reassembly settings the
+deployment page prescribes for the train computers (``two_hosts.HOST_SYSCTLS``).
 
 Skipped, saying why, where the kernel or the user may not create network namespaces
 or veth pairs (unprivileged CI). Every namespace, the veth and every process are
@@ -53,6 +55,9 @@ def test_processing_host_receives_every_image_and_the_imu(ros_env, tmp_path, two
     # honest transport: no process mapped a Fast DDS shared-memory segment, and the
     # images went through the processing host's interface
     assert result['shm'] == [], context
+    # the train computers' kernel settings (docs/arch/deployment.md) were in force
+    for key, value in two_hosts.HOST_SYSCTLS.items():
+        assert result['sysctl'][key] == value, context
     images = result['images']
     assert images is not None, context
     assert images['sent'] == 2 * round(DURATION_S * two_hosts.FPS)

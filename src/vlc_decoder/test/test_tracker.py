@@ -131,12 +131,18 @@ def test_a_confirmed_track_never_carries_its_uid_to_another_lamp():
         signal_b = synth.LampSignal(uid_a + 1, phase_s=rng.uniform(0, 0.01))
         tracker = LampTracker(CFG)
         lamp_a = synth.SyntheticLamp(signal_a, 600.0, 300.0, 20.0, 16.0, 60.0)
+        # A vanishes two frames after its confirmation (its clock as young as it gets)
+        confirmed_at = None
         for k in range(40):
             records = tracker.process(int(k * 1e9 / 30), *_lamp_frame([lamp_a], k))
+            if confirmed_at is None and records and records[0].state == CONFIRMED:
+                confirmed_at = k
+            if confirmed_at is not None and k >= confirmed_at + 2:
+                break
         assert records[0].state == CONFIRMED and records[0].uid == uid_a
         # 80 px off: inside the gate (60 px + the spot's height), not a tight match
         lamp_b = synth.SyntheticLamp(signal_b, 680.0, 300.0, 20.0, 16.0, 60.0)
-        for k in range(40, 44):
+        for k in range(k + 1, k + 5):
             for rec in tracker.process(int(k * 1e9 / 30), *_lamp_frame([lamp_b], k)):
                 wrong += rec.state == CONFIRMED and rec.uid != uid_a + 1
     assert wrong == 0

@@ -216,16 +216,18 @@ def test_calibration_errors_have_the_profiles_statistics(realistic):
 
 def test_belief_calibration_differs_from_the_truth_by_the_profile(realistic):
     # through the whole path: seed → calibration → K of the belief files
+    # 250 draws (each a whole calibration, 30 ms): the spread of the focal error is
+    # known to 4.5 % (1 sigma), so within 20 % holds by 4 sigma and a wrong scale fails
     optics, _ = draw_optics(realistic, 1)
     rel = []
-    for seed in range(N):
+    for seed in range(250):
         calibration, error = draw_calibration(realistic, seed, optics)
         rel.append(calibration.left.K[0, 0] / optics.left.fx - 1.0)
         np.testing.assert_allclose(calibration.left.K[0, 0],
                                    optics.left.fx * (1 + error['focal'][0, 0]), rtol=1e-12)
         np.testing.assert_allclose(calibration.left.D[:5],
                                    np.array(optics.left.distortion) + error['distortion'][0])
-    assert _within(np.std(rel), realistic.calibration['focal_sigma'])
+    assert _within(np.std(rel), realistic.calibration['focal_sigma'], rel=0.20)
 
 
 def test_belief_calibration_rectifies_the_true_camera_consistently(realistic):

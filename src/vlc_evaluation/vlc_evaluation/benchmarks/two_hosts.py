@@ -28,12 +28,17 @@ Usage (as root, after ``source scripts/env.sh``)::
 
     two_host_benchmark [--profiles udp_defaults,udp_buffers,...|all] [--runs 3]
                        [--duration 10] [--link none|1gbit] [--processing]
+                       [--queue-frames 1000] [--kernel-defaults]
                        [--profile-file NAME=path.xml ...] [--keep-logs]
 
 A profile name is one of :data:`PROFILES` (generated into a temporary directory),
 ``shipped`` (``config/fastdds_two_hosts.xml`` of the workspace, ``$VLC_WS``),
-``shipped_unicast`` (the same without the image readers' multicast locators) or
+``shipped_unicast`` (the same without the image readers' multicast locators),
+``shipped_sndbuf4m`` (with the 4 MB send buffer it had before 2026-12-06) or
 ``shipped_default_times`` (without the image endpoints' heartbeat/response times).
+``--queue-frames N`` shortens or lengthens the shaped link's send queue (a stress
+test), ``--kernel-defaults`` leaves out the IP-reassembly settings
+(:data:`HOST_SYSCTLS`) the harness otherwise applies in both namespaces.
 Needs root (CAP_SYS_ADMIN, CAP_NET_ADMIN) for ``ip netns``; prints why and exits 2
 without it. Results and why the shipped profile is what it is: docs/arch/deployment.md.
 
@@ -66,11 +71,19 @@ ADDRESSES = {SENSOR: f'{SUBNET}.1', PROCESSING: f'{SUBNET}.2'}
 IMAGE_TOPICS = ('/stereo/left/image_raw', '/stereo/right/image_raw')
 IMU_TOPIC = '/imu/data_raw'
 OUTPUT_TOPICS = ('/spots/pairs', '/vlc/lamps')
+IMAGE_BYTES = 1280 * 720     # one mono8 frame's payload
 EPOCH_S = 1704067200.0        # rig.yaml epoch_s: stamps are epoch + k / rate
 FPS = 30.0
 IMU_RATE_HZ = 400.0
 TBF_BURST_B = 10 * 1514
-TBF_LIMIT_B = 1000 * 1514
+QUEUE_FRAMES = 1000          # a NIC's default txqueuelen
+TBF_LIMIT_B = QUEUE_FRAMES * 1514
+#: kernel settings of both train computers (docs/arch/deployment.md), applied in each
+#: namespace (they are per network namespace). IP reassembly: a 64 kB datagram whose
+#: fragment was lost holds its reassembly memory until ``ipfrag_time``; with the defaults
+#: (30 s, 4 MB) about 64 such datagrams fill it and every later fragmented datagram (every
+#: image) is dropped for up to 30 s, while the writer's repairs keep the link saturated.
+HOST_SYSCTLS = {'net.ipv4.ipfrag_time': '3', 'net.ipv4.ipfrag_high_thresh': '134217728'}
 SHIPPED_PROFILE = pathlib.Path('config') / 'fastdds_two_hosts.xml'
 
 # ----------------------------------------------------------------------------- profiles
@@ -161,13 +174,25 @@ PROFILES = {
 }
 
 
-#: the shipped profile and variants of it without one element: name -> (element, text)
+def _without(element):
+    return lambda xml: re.sub(rf'\s*<{element}>.*?</{element}>', '', xml, flags=re.S)
+
+
+def _with_send_buffer(size):
+    return lambda xml: re.sub(r'<sendBufferSize>\d+</sendBufferSize>',
+                              f'<sendBufferSize>{size}</sendBufferSize>', xml)
+
+
+#: the shipped profile and variants of it: name -> (transform of its XML, text)
 SHIPPED_VARIANTS = {
     'shipped': (None, 'config/fastdds_two_hosts.xml (shipped)'),
-    'shipped_unicast': ('multicastLocatorList', 'the shipped profile without the image '
-                        'readers\' multicast locators (each reader its own unicast copy)'),
-    'shipped_default_times': ('times', 'the shipped profile without the image endpoints\' '
-                              'times (Fast DDS defaults: heartbeat 3 s, responses after 5 ms)'),
+    'shipped_unicast': (_without('multicastLocatorList'), 'the shipped profile without the '
+                        'image readers\' multicast locators (each reader its own unicast copy)'),
+    'shipped_sndbuf4m': (_with_send_buffer(4194304), 'the shipped profile with a 4 MB send '
+                         'buffer (the profile before 2026-12-06: more than the NIC queue)'),
+    'shipped_default_times': (_without('times'), 'the shipped profile without the image '
+                              'endpoints\' times (Fast DDS defaults: heartbeat 3 s, responses '
+                              'after 5 ms)'),
 }
 DEFAULT_PROFILES = ('udp_defaults', 'udp_buffers', 'udp_buffers_hb', 'udp_buffers_rt', 'async',
                     'shipped_unicast', 'shipped')
@@ -184,10 +209,9 @@ def profile_paths(names, tmpdir, workspace=None, extra=()):
             if name == 'shipped':
                 out[name] = ('config/fastdds_two_hosts.xml (shipped)', path, {})
                 continue
-            element, description = SHIPPED_VARIANTS[name]
+            transform, description = SHIPPED_VARIANTS[name]
             variant = pathlib.Path(tmpdir) / f'{name}.xml'
-            variant.write_text(re.sub(rf'\s*<{element}>.*?</{element}>', '', path.read_text(),
-                                      flags=re.S))
+            variant.write_text(transform(path.read_text()))
             out[name] = (description, variant, {})
             continue
         description, xml, env = PROFILES[name]
@@ -268,12 +292,15 @@ class TwoHosts:
 
     _serial = itertools.count()
 
-    def __init__(self, link='none', log_dir=None):
+    def __init__(self, link='none', log_dir=None, queue_frames=QUEUE_FRAMES,
+                 host_sysctls=HOST_SYSCTLS):
         tag = f'{os.getpid()}x{next(self._serial)}'
         self.ns = {SENSOR: f'vlc2h-sensor-{tag}', PROCESSING: f'vlc2h-proc-{tag}'}
         # interface names are at most 15 characters
         self.ifname = {SENSOR: f'v2hs{tag}'[:15], PROCESSING: f'v2hp{tag}'[:15]}
         self.link = link
+        self.queue_frames = queue_frames
+        self.host_sysctls = dict(host_sysctls or {})
         self.log_dir = pathlib.Path(log_dir or tempfile.mkdtemp(prefix='two_hosts_'))
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.procs = []
@@ -307,15 +334,23 @@ class TwoHosts:
             _ip('-n', ns, 'link', 'set', dev, 'up')
             # SPDP discovery goes to 239.255.0.1: route multicast out of the veth
             _ip('-n', ns, 'route', 'add', '224.0.0.0/4', 'dev', dev)
+            for key, value in self.host_sysctls.items():
+                result = subprocess.run(['ip', 'netns', 'exec', ns, 'sysctl', '-w',
+                                         f'{key}={value}'], capture_output=True, text=True,
+                                        timeout=20)
+                if result.returncode != 0:
+                    raise RuntimeError(f'sysctl -w {key}={value} refused in {ns}: '
+                                       f'{result.stderr.strip()}')
             if self.link != 'none':
                 self._shape(ns, dev)
 
     def _shape(self, ns, dev):
         rate = self.link
         # a token bucket at the line rate: bursts of at most 10 full frames, and a queue
-        # of 1000 frames (1.5 MB, a NIC's default txqueuelen) before packets are dropped
+        # of queue_frames frames (default 1000 = 1.5 MB, a NIC's default txqueuelen)
+        # before packets are dropped
         cmd = ['tc', 'qdisc', 'add', 'dev', dev, 'root', 'tbf', 'rate', rate,
-               'burst', str(TBF_BURST_B), 'limit', str(TBF_LIMIT_B)]
+               'burst', str(TBF_BURST_B), 'limit', str(self.queue_frames * 1514)]
         result = subprocess.run(['ip', 'netns', 'exec', ns, *cmd], capture_output=True,
                                 text=True, timeout=20)
         if result.returncode != 0:
@@ -517,8 +552,12 @@ def _domain_id():
 
 
 def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_dir=None,
-               profile_env=None, domain_id=None, startup_timeout_s=60.0):
+               profile_env=None, domain_id=None, startup_timeout_s=60.0,
+               queue_frames=QUEUE_FRAMES, host_sysctls=HOST_SYSCTLS):
     """One run: the sensors stream ``duration_s`` to the probes on the other host.
+
+    ``queue_frames``: the sensor end's send queue (frames) behind the link;
+    ``host_sysctls``: kernel settings applied in both namespaces (``{}``: the kernel's).
 
     Two probe processes on the processing host, as the graph has them: one takes both
     image topics (and the processing outputs), one the IMU (the compensator's topic, in
@@ -533,7 +572,8 @@ def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_
     expect = math.ceil(duration_s * FPS - 1e-9)
     expect_imu = math.ceil(duration_s * IMU_RATE_HZ - 1e-9)
     timeout = startup_timeout_s + 3 * duration_s + 20
-    with TwoHosts(link=link, log_dir=log_dir) as hosts:
+    with TwoHosts(link=link, log_dir=log_dir, queue_frames=queue_frames,
+                  host_sysctls=host_sysctls) as hosts:
         out = {role: hosts.log_dir / f'probe_{role}.json' for role in ('images', 'imu')}
         module = [sys.executable, '-m', 'vlc_evaluation.benchmarks.two_hosts', 'probe']
         probes = [
@@ -573,8 +613,8 @@ def run_stream(profile_path, duration_s=5.0, link='none', processing=False, log_
         logs = {proc.name: hosts.output(proc) for proc in hosts.procs}
         link_text = hosts.describe_link()
         counters = hosts.counters()
-        buffers = {key: hosts.sysctl(SENSOR, key)
-                   for key in ('net.core.rmem_max', 'net.core.wmem_max')}
+        buffers = {key: hosts.sysctl(PROCESSING, key)
+                   for key in ('net.core.rmem_max', 'net.core.wmem_max', *HOST_SYSCTLS)}
         shm = sorted(hosts.shm_seen)
     data = {role: json.loads(path.read_text()) if path.exists() else None
             for role, path in out.items()}
@@ -727,7 +767,7 @@ def probe_main(args):
 def _format_row(name, run, res):
     img, imu = res['images'], res['imu']
     if img is None:
-        return f'| {name} | {run} | probe gave no result | | | | | | | | | | | |'
+        return f'| {name} | {run} | probe gave no result | | | | | | | | | | | | |'
     lat, tr = img['latency_ms'], img['transport_ms']
     outputs = ' / '.join(str(res['outputs'].get(t, 0)) for t in OUTPUT_TOPICS)
     return (f'| {name} | {run} | {img["sent"]} | {img["publish_rate_hz"]:.1f} | '
@@ -735,7 +775,13 @@ def _format_row(name, run, res):
             f'{lat["median"]:.1f} | {lat["p99"]:.1f} | {lat["max"]:.1f} | '
             f'{tr["median"]:.1f} / {tr["p99"]:.1f} | '
             f'{imu["received"]}/{imu["sent"]} ({imu["latency_ms"]["p99"]:.1f}) | '
-            f'{_drops(res["counters"])} | {res["load"]:.1f} | {outputs} |')
+            f'{_drops(res["counters"])} | {_wire(res["counters"], img["sent"])} | '
+            f'{res["load"]:.1f} | {outputs} |')
+
+
+def _wire(counters, images):
+    """Bytes the sensor host sent on the link per byte of image payload sent."""
+    return f'{counters[SENSOR]["tx_bytes"] / max(images * IMAGE_BYTES, 1):.2f}'
 
 
 def _drops(counters):
@@ -769,14 +815,16 @@ def benchmark_main(args):
               'latency median ms | '
               'p99 ms | max ms | transport median / p99 ms | IMU received/sent (p99 ms) | '
               'packets dropped: sensor qdisc / processing UDP rcvbuf / IP reassembly '
-              'fails | load (1 min) | spots/pairs / vlc/lamps msgs |')
-        print('|---|---|---|---|---|---|---|---|---|---|---|---|---|---|')
+              'fails | link bytes per image byte | load (1 min) | spots/pairs / vlc/lamps msgs |')
+        print('|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|')
         totals = {}
         # interleave the profiles run by run: the machine's load drifts over minutes
         for run in range(1, args.runs + 1):
             for name, (_description, path, env) in profiles.items():
                 res = run_stream(path, args.duration, args.link, args.processing,
-                                 profile_env=env, log_dir=None)
+                                 profile_env=env, log_dir=None,
+                                 queue_frames=args.queue_frames,
+                                 host_sysctls={} if args.kernel_defaults else HOST_SYSCTLS)
                 print(_format_row(name, run, res), flush=True)
                 if not args.keep_logs:
                     shutil.rmtree(res['log_dir'], ignore_errors=True)
@@ -841,6 +889,12 @@ def main(argv=None):
                              "or 'none' (the veth's memory speed)")
     parser.add_argument('--processing', action='store_true',
                         help='also run spot_locator_node and vlc_decoder_node')
+    parser.add_argument('--queue-frames', type=int, default=QUEUE_FRAMES,
+                        help='send queue of the shaped link in 1514-byte frames '
+                             '(default %(default)s, a NIC\'s txqueuelen)')
+    parser.add_argument('--kernel-defaults', action='store_true',
+                        help='leave the kernel\'s IP-reassembly settings as they are '
+                             f'(default: set {HOST_SYSCTLS} in both namespaces)')
     parser.add_argument('--keep-logs', action='store_true')
     return benchmark_main(parser.parse_args(argv))
 
