@@ -142,8 +142,9 @@ def test_a_confirmed_track_never_carries_its_uid_to_another_lamp():
         assert records[0].state == CONFIRMED and records[0].uid == uid_a
         # 80 px off: inside the gate (60 px + the spot's height), not a tight match
         lamp_b = synth.SyntheticLamp(signal_b, 680.0, 300.0, 20.0, 16.0, 60.0)
-        for k in range(k + 1, k + 5):
-            for rec in tracker.process(int(k * 1e9 / 30), *_lamp_frame([lamp_b], k)):
+        last_a = k
+        for j in range(last_a + 1, last_a + 5):
+            for rec in tracker.process(int(j * 1e9 / 30), *_lamp_frame([lamp_b], j)):
                 wrong += rec.state == CONFIRMED and rec.uid != uid_a + 1
     assert wrong == 0
 
