@@ -35,8 +35,16 @@ FASTDDS_PROFILE = WS / 'config' / 'fastdds_localhost_bigshm.xml'
 def _pick_domain_id():
     # Unique per test process and per call, within 1..119: the evaluation's lanes use
     # 120..232 (vlc_evaluation.runner), so a test run never shares a domain
-    # with an evaluation running beside it.
+    # with an evaluation running beside it. Under pytest-xdist (scripts/run_tests.sh
+    # runs the tests that start no process on two workers) each worker draws from a
+    # range of its own, so two tests running side by side never share a domain.
     _pick_domain_id.n = getattr(_pick_domain_id, 'n', 0) + 1
+    worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+    workers = int(os.environ.get('PYTEST_XDIST_WORKER_COUNT', '1') or 1)
+    if worker.startswith('gw') and worker[2:].isdigit() and workers > 1:
+        size = 119 // workers
+        start = int(worker[2:]) % workers * size
+        return 1 + start + (os.getpid() * 7 + _pick_domain_id.n * 13) % size
     return 1 + (os.getpid() * 7 + _pick_domain_id.n * 13) % 119
 
 
