@@ -3,6 +3,7 @@
 executable with exit code 0, without a traceback, and leave no Fast DDS shared-memory
 segment behind.
 """
+import contextlib
 import os
 import pathlib
 import signal
@@ -115,12 +116,39 @@ def test_every_node_stops_with_exit_0_without_traceback_or_leftover_segment(
         for proc in procs.values():
             os.killpg(proc.pid, signum)
     _wait_all(procs)
+    hung = [proc for proc in procs.values() if proc.poll() is None]
+    for proc in hung:
+        # every node prints its threads' Python stacks on SIGUSR1 (vlc_common.process)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGUSR1)
+    if hung:
+        time.sleep(1.0)
     problems = []
     for exe, proc in procs.items():
         out = launch.output(proc)
         if proc.returncode != 0:
-            problems.append(f'{exe}: exit code {proc.returncode}')
+            problems.append(f'{exe}: exit code {proc.returncode}'
+                            + (f', still running; its log:\n{out[-6000:]}'
+                               if proc in hung else ''))
         if 'Traceback' in out:
             problems.append(f'{exe}: traceback\n{out[-2000:]}')
     assert not problems, '\n'.join(problems)
     assert _leaked_segments(before) == []
+
+
+def test_sigusr1_prints_every_threads_stack_and_the_node_runs_on(launch):
+    # what the stop test asks of a node that did not stop
+    proc = launch('imu_compensator', 'imu_compensator_node', {})
+    deadline = time.monotonic() + 20.0
+    while '[INFO]' not in launch.output(proc) and time.monotonic() < deadline:
+        assert proc.poll() is None, launch.output(proc)
+        time.sleep(0.2)
+    os.kill(proc.pid, signal.SIGUSR1)
+    deadline = time.monotonic() + 5.0
+    while 'most recent call first' not in launch.output(proc) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    out = launch.output(proc)
+    assert 'most recent call first' in out and 'File "' in out, out
+    assert proc.poll() is None, out
+    os.killpg(proc.pid, signal.SIGINT)
+    assert proc.wait(20.0) == 0, launch.output(proc)

@@ -48,7 +48,7 @@ from vlc_bags.playback import (
     select_topics,
     time_window,
 )
-from vlc_common.process import keep_large_buffers, run_node
+from vlc_common.process import keep_large_buffers, run_node, spin_until_shutdown
 
 
 class BagPlayerNode(Node):
@@ -193,8 +193,13 @@ def _play(node):
     """Spin until the bag is done (and ``exit_when_done``) or the node is stopped."""
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    while rclpy.ok() and not (node.done.is_set() and node.config.exit_when_done):
-        executor.spin_once(timeout_sec=0.1)
+
+    def spin():
+        while rclpy.ok() and not (node.done.is_set() and node.config.exit_when_done):
+            executor.spin_once(timeout_sec=0.1)
+    # a SIGINT between rclpy.ok() and the wait set shuts the context down under
+    # spin_once (RCLError "the given context is not valid"): part of the stop, exit 0
+    spin_until_shutdown(spin)
     return 1 if node.failure is not None else 0
 
 

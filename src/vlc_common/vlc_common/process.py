@@ -1,5 +1,7 @@
 """Process conventions shared by every node of the graph: start-up, ``main()``, clean stop."""
+import contextlib
 import ctypes
+import faulthandler
 import gc
 import os
 import signal
@@ -173,6 +175,10 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
     stopper = _StopSignals()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, stopper)
+    # SIGUSR1 prints every thread's Python stack to stderr (the node's log) and the node
+    # runs on: what a node that does not stop is doing (tests/test_clean_stop.py asks)
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     rclpy.init(args=args)
     node, code = None, 0
     try:
