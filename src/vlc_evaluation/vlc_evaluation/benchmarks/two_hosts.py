@@ -35,7 +35,7 @@ A profile name is one of :data:`PROFILES` (generated into a temporary directory)
 ``shipped`` (``config/fastdds_two_hosts.xml`` of the workspace, ``$VLC_WS``),
 ``shipped_unicast`` (the same without the image readers' multicast locators),
 ``shipped_sndbuf4m`` (with the 4 MB send buffer it had before 2026-12-06) or
-``shipped_default_times`` (without the image endpoints' heartbeat/response times).
+``shipped_hb20`` (with the image writers' 20 ms heartbeat it had before then).
 ``--queue-frames N`` shortens or lengthens the shaped link's send queue (a stress
 test), ``--kernel-defaults`` leaves out the IP-reassembly settings
 (:data:`HOST_SYSCTLS`) the harness otherwise applies in both namespaces.
@@ -183,6 +183,12 @@ def _with_send_buffer(size):
                               f'<sendBufferSize>{size}</sendBufferSize>', xml)
 
 
+def _with_writer_times(xml):
+    writers = ''.join(f'  <data_writer profile_name="{topic}">\n{_FAST_HEARTBEAT}'
+                      '  </data_writer>\n' for topic in IMAGE_TOPICS)
+    return xml.replace('</profiles>', writers + '</profiles>')
+
+
 #: the shipped profile and variants of it: name -> (transform of its XML, text)
 SHIPPED_VARIANTS = {
     'shipped': (None, 'config/fastdds_two_hosts.xml (shipped)'),
@@ -190,9 +196,8 @@ SHIPPED_VARIANTS = {
                         'image readers\' multicast locators (each reader its own unicast copy)'),
     'shipped_sndbuf4m': (_with_send_buffer(4194304), 'the shipped profile with a 4 MB send '
                          'buffer (the profile before 2026-12-06: more than the NIC queue)'),
-    'shipped_default_times': (_without('times'), 'the shipped profile without the image '
-                              'endpoints\' times (Fast DDS defaults: heartbeat 3 s, responses '
-                              'after 5 ms)'),
+    'shipped_hb20': (_with_writer_times, 'the shipped profile with the image writers\' '
+                     'heartbeat 20 ms and NACK response 0 (the profile before 2026-12-06)'),
 }
 DEFAULT_PROFILES = ('udp_defaults', 'udp_buffers', 'udp_buffers_hb', 'udp_buffers_rt', 'async',
                     'shipped_unicast', 'shipped')
@@ -774,9 +779,15 @@ def _format_row(name, run, res):
             f'{img["received"]} | {img["lost"]} | '
             f'{lat["median"]:.1f} | {lat["p99"]:.1f} | {lat["max"]:.1f} | '
             f'{tr["median"]:.1f} / {tr["p99"]:.1f} | '
-            f'{imu["received"]}/{imu["sent"]} ({imu["latency_ms"]["p99"]:.1f}) | '
+            f'{_imu_cell(imu)} | '
             f'{_drops(res["counters"])} | {_wire(res["counters"], img["sent"])} | '
             f'{res["load"]:.1f} | {outputs} |')
+
+
+def _imu_cell(imu):
+    if imu is None:
+        return 'no IMU probe result'
+    return f'{imu["received"]}/{imu["sent"]} ({imu["latency_ms"]["p99"]:.1f})'
 
 
 def _wire(counters, images):
