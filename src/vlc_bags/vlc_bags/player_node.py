@@ -155,6 +155,10 @@ class BagPlayerNode(Node):
                     break
             self.get_logger().info(f'end of bag: {self.published} messages published')
         except Exception as exc:  # unreadable bag: report, and let main exit non-zero
+            if self._stop.is_set() or not self.context.ok():
+                # a SIGINT/SIGTERM shut the context down under a publish (RCLError
+                # "publisher's context is invalid"): that is the stop, not a failure
+                return
             self.failure = exc
             self.get_logger().error(f'playback failed: {exc!r}')
         finally:
