@@ -438,7 +438,9 @@ def test_a_kept_lamp_refinement_is_applied_and_a_bad_one_refused(harness, tmp_pa
 
 def test_a_run_adds_its_lamp_triplets_to_the_file_at_stop(harness, tmp_path):
     path = tmp_path / 'refinement.yaml'
-    h = harness({'lamp_refinement_path': str(path)})
+    # the periodic save an hour away: the run (4.4 s simulated) takes longer than the
+    # default 10 s of wall time on a loaded machine, and the file would be written then
+    h = harness({'lamp_refinement_path': str(path), 'lamp_refinement_save_s': 3600.0})
     traj, events = constant_speed_run(60.0, 4.4, seed=22, start_chainage_m=5.0)
     for _, kind, payload in events:
         if kind == 'imu':
