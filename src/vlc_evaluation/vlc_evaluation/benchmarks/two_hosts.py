@@ -75,9 +75,10 @@ IMAGE_BYTES = 1280 * 720     # one mono8 frame's payload
 EPOCH_S = 1704067200.0        # rig.yaml epoch_s: stamps are epoch + k / rate
 FPS = 30.0
 IMU_RATE_HZ = 400.0
-TBF_BURST_B = 10 * 1514
+FRAME_B = 1514               # a full Ethernet frame
+TBF_BURST_B = 10 * FRAME_B
 QUEUE_FRAMES = 1000          # a NIC's default txqueuelen
-TBF_LIMIT_B = QUEUE_FRAMES * 1514
+TBF_LIMIT_B = QUEUE_FRAMES * FRAME_B
 #: kernel settings of both train computers (docs/arch/deployment.md), applied in each
 #: namespace (they are per network namespace). IP reassembly: a 64 kB datagram whose
 #: fragment was lost holds its reassembly memory until ``ipfrag_time``; with the defaults
@@ -286,6 +287,14 @@ def shaping_unavailable(rate='1gbit'):
         _ip('netns', 'del', name, check=False)
 
 
+def _in_namespace(ns, cmd):
+    """Run ``cmd`` inside network namespace ``ns``; a refusal raises RuntimeError."""
+    result = subprocess.run(['ip', 'netns', 'exec', ns, *cmd], capture_output=True,
+                            text=True, timeout=20)
+    if result.returncode != 0:
+        raise RuntimeError(f'`{" ".join(cmd)}` refused in {ns}: {result.stderr.strip()}')
+
+
 class TwoHosts:
     """Two network namespaces joined by a veth pair; processes started in either.
 
@@ -340,12 +349,7 @@ class TwoHosts:
             # SPDP discovery goes to 239.255.0.1: route multicast out of the veth
             _ip('-n', ns, 'route', 'add', '224.0.0.0/4', 'dev', dev)
             for key, value in self.host_sysctls.items():
-                result = subprocess.run(['ip', 'netns', 'exec', ns, 'sysctl', '-w',
-                                         f'{key}={value}'], capture_output=True, text=True,
-                                        timeout=20)
-                if result.returncode != 0:
-                    raise RuntimeError(f'sysctl -w {key}={value} refused in {ns}: '
-                                       f'{result.stderr.strip()}')
+                _in_namespace(ns, ['sysctl', '-w', f'{key}={value}'])
             if self.link != 'none':
                 self._shape(ns, dev)
 
@@ -354,12 +358,9 @@ class TwoHosts:
         # a token bucket at the line rate: bursts of at most 10 full frames, and a queue
         # of queue_frames frames (default 1000 = 1.5 MB, a NIC's default txqueuelen)
         # before packets are dropped
-        cmd = ['tc', 'qdisc', 'add', 'dev', dev, 'root', 'tbf', 'rate', rate,
-               'burst', str(TBF_BURST_B), 'limit', str(self.queue_frames * 1514)]
-        result = subprocess.run(['ip', 'netns', 'exec', ns, *cmd], capture_output=True,
-                                text=True, timeout=20)
-        if result.returncode != 0:
-            raise RuntimeError(f'tc refused `{" ".join(cmd)}`: {result.stderr.strip()}')
+        _in_namespace(ns, ['tc', 'qdisc', 'add', 'dev', dev, 'root', 'tbf', 'rate', rate,
+                           'burst', str(TBF_BURST_B),
+                           'limit', str(self.queue_frames * FRAME_B)])
 
     def sysctl(self, host, key):
         result = subprocess.run(['ip', 'netns', 'exec', self.ns[host], 'sysctl', '-n', key],
@@ -922,7 +923,7 @@ def main(argv=None):
     parser.add_argument('--processing', action='store_true',
                         help='also run spot_locator_node and vlc_decoder_node')
     parser.add_argument('--queue-frames', type=int, default=QUEUE_FRAMES,
-                        help='send queue of the shaped link in 1514-byte frames '
+                        help=f'send queue of the shaped link in {FRAME_B}-byte frames '
                              '(default %(default)s, a NIC\'s txqueuelen)')
     parser.add_argument('--kernel-defaults', action='store_true',
                         help='leave the kernel\'s IP-reassembly settings as they are '
