@@ -33,7 +33,7 @@ RECORDS_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_LAST)
 
 
-class _NeverWaited(CallbackGroup):
+class NeverWaited(CallbackGroup):
     """A callback group whose entities the executor never adds to its wait set."""
 
     def can_execute(self, entity):
@@ -53,7 +53,7 @@ class PolledSubscription:
 
     def __init__(self, node, msg_type, topic, qos, raw=False):
         self._sub = node.create_subscription(msg_type, topic, _never_called, qos,
-                                             callback_group=_NeverWaited(), raw=raw)
+                                             callback_group=NeverWaited(), raw=raw)
 
     @property
     def subscription(self):

@@ -183,6 +183,9 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
     node, code = None, 0
     try:
         node = make_node()
+        # the QoS warnings' handlers off the executor's wait set (vlc_common.qos_events)
+        from vlc_common.qos_events import poll_qos_events
+        poll_qos_events(node)
         freeze_start_up_objects()
         stopper.spinning = True
         if stopper.received:
