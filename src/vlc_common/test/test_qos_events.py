@@ -53,3 +53,20 @@ def test_incompatible_qos_is_reported_by_the_poll_not_by_the_executor():
     finally:
         rclpy.shutdown(context=ctx)
 
+
+
+def test_the_environment_switch_leaves_the_handlers_with_the_executor(monkeypatch):
+    monkeypatch.setenv('VLC_POLL_QOS_EVENTS', '0')
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = rclpy.create_node('qos_events_off', context=ctx)
+        node.create_publisher(Int32, 'qos_events_off', BEST_EFFORT)
+        assert poll_qos_events(node) is None
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        handlers = [w for w in node.waitables if isinstance(w, EventHandler)]
+        assert handlers and all(executor.can_execute(h) for h in handlers)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

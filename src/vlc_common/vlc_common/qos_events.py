@@ -17,6 +17,7 @@ compensator −16 %, spot locator −14 %; docs/ARCHITECTURE.md, process convent
 Handlers created after the call (a publisher made later) stay with the executor.
 """
 from contextlib import ExitStack
+import os
 
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import EventHandler
@@ -74,6 +75,14 @@ class PolledQosEvents:
         return handled
 
 
+#: Environment variable: ``0`` leaves the handlers with rclpy's executor (A/B).
+ENABLE_ENV = 'VLC_POLL_QOS_EVENTS'
+
+
 def poll_qos_events(node, period_s=POLL_PERIOD_S):
-    """Move ``node``'s event handlers off the executor (:class:`PolledQosEvents`)."""
+    """Move ``node``'s event handlers off the executor (:class:`PolledQosEvents`);
+    None, leaving them where rclpy put them, with ``VLC_POLL_QOS_EVENTS=0``.
+    """
+    if os.environ.get(ENABLE_ENV, '1') == '0':
+        return None
     return PolledQosEvents(node, period_s)
