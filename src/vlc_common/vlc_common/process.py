@@ -140,8 +140,22 @@ def _profiled(spin, name):
 
 
 def _spin(node):
-    import rclpy
-    spin_until_shutdown(lambda: rclpy.spin(node))
+    with _executor_for(node) as executor:
+        spin_until_shutdown(executor.spin)
+
+
+@contextlib.contextmanager
+def _executor_for(node):
+    """The graph's executor (:mod:`vlc_common.executor`) with ``node`` added, as
+    ``rclpy.spin`` adds it to its global one (and removes it afterwards).
+    """
+    from vlc_common.executor import make_executor
+    executor = make_executor(node.context)
+    executor.add_node(node)
+    try:
+        yield executor
+    finally:
+        executor.remove_node(node)
 
 
 def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_errors=()):
@@ -157,7 +171,8 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
         Command-line arguments for ``rclpy.init``.
     spin : callable(node) -> int or None
         Runs the node until it is done or stopped; its return value is the exit code
-        (default: ``rclpy.spin`` until SIGINT, SIGTERM or an external shutdown).
+        (default: the graph's executor, ``vlc_common.executor``, until SIGINT, SIGTERM
+        or an external shutdown).
     stop : callable(node), optional
         Called before ``destroy_node`` (flush files, stop threads).
     startup_errors : tuple of exception types
@@ -217,8 +232,8 @@ def spin_until_finished(node):
     """Spin a node that ends by itself (a rig node with a duration) until its ``finished``
     future is done or it is stopped; returns the future's exit code (0 when stopped).
     """
-    import rclpy
-    spin_until_shutdown(lambda: rclpy.spin_until_future_complete(node, node.finished))
+    with _executor_for(node) as executor:
+        spin_until_shutdown(lambda: executor.spin_until_future_complete(node.finished))
     return node.finished.result() if node.finished.done() else 0
 
 
