@@ -167,11 +167,7 @@ class LeanExecutor(SingleThreadedExecutor):
         self._call(tmr.callback)
 
     def _run_subscription(self, sub):
-        try:
-            with sub.handle:
-                taken = sub.handle.take_message(sub.msg_type, sub.raw)
-        except InvalidHandle:
-            return
+        taken = _take(sub, lambda h: h.take_message(sub.msg_type, sub.raw))
         if taken is None:
             return
         if sub._callback_type is Subscription.CallbackType.MessageOnly:
@@ -180,11 +176,8 @@ class LeanExecutor(SingleThreadedExecutor):
             self._call(sub.callback, *taken)
 
     def _run_client(self, client):
-        try:
-            with client.handle:
-                header, response = client.handle.take_response(client.srv_type.Response)
-        except InvalidHandle:
-            return
+        header, response = _take(client, lambda h: h.take_response(client.srv_type.Response),
+                                 (None, None))
         if header is None:
             return
         try:
@@ -195,15 +188,21 @@ class LeanExecutor(SingleThreadedExecutor):
         future.set_result(response)
 
     def _run_service(self, srv):
-        try:
-            with srv.handle:
-                request, header = srv.handle.service_take_request(srv.srv_type.Request)
-        except InvalidHandle:
-            return
+        request, header = _take(srv, lambda h: h.service_take_request(srv.srv_type.Request),
+                                (None, None))
         if header is None:
             return
         response = srv.callback(request, srv.srv_type.Response())
         srv.send_response(response, header)
+
+
+def _take(entity, take, gone=None):
+    """``take(entity.handle)`` with the handle held; ``gone`` when it was destroyed."""
+    try:
+        with entity.handle:
+            return take(entity.handle)
+    except InvalidHandle:
+        return gone
 
 
 def _entered(stack, handle):
