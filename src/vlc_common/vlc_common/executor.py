@@ -69,11 +69,11 @@ class LeanExecutor(SingleThreadedExecutor):
             timeout_sec.timeout if isinstance(timeout_sec, TimeoutObject) else timeout_sec)
         with ExitStack() as stack:
             subs, timers, guards, clients, services = (
-                [e for e in group if _entered(stack, e.handle)]
+                [e for e in group if entered(stack, e.handle)]
                 for group in (subs, timers, guards, clients, services))
             own = [gc for gc in (self._guard, self._sigint_gc)
-                   if gc is not None and _entered(stack, gc.handle)]
-            waitables = [w for w in waitables if _entered(stack, w)]
+                   if gc is not None and entered(stack, gc.handle)]
+            waitables = [w for w in waitables if entered(stack, w)]
             extra = NumberOfEntities()
             for waitable in waitables:
                 extra += waitable.get_num_entities()
@@ -205,8 +205,10 @@ def _take(entity, take, gone=None):
         return gone
 
 
-def _entered(stack, handle):
-    """Enter ``handle`` (kept alive while waited on); False when it was destroyed."""
+def entered(stack, handle):
+    """Enter ``handle`` into ``stack`` (kept alive while waited on); False when it was
+    destroyed. Also :mod:`vlc_common.qos_events`'s wait.
+    """
     try:
         stack.enter_context(handle)
     except InvalidHandle:

@@ -21,9 +21,9 @@ import os
 
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import EventHandler
-from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 
+from vlc_common.executor import entered
 from vlc_common.polled import NeverWaited
 
 #: Period of the check, s (the delay of a QoS warning at most).
@@ -49,13 +49,8 @@ class PolledQosEvents:
         """Take every pending event and call its handler's callback; returns how many."""
         handled = 0
         with ExitStack() as stack:
-            live = []
-            for handler in self.handlers:
-                try:
-                    stack.enter_context(handler)
-                except InvalidHandle:       # its publisher or subscription is gone
-                    continue
-                live.append(handler)
+            # a handler whose publisher or subscription is gone is left out
+            live = [h for h in self.handlers if entered(stack, h)]
             if not live:
                 return 0
             stack.enter_context(self._context.handle)
