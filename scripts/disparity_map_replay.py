@@ -11,7 +11,7 @@ further round reads what the rounds before kept. A row with the map off is the b
 Markdown table: per round, dynamic max / mean per speed (every pose after 3 s), the
 static results (the last pose of each trial), poses within 3σ, over all installations.
 
-    python scripts/disparity_map_replay.py BAG... [--rounds 3]
+    python scripts/disparity_map_replay.py BAG... [--rounds 3] [--param NAME:=VALUE]...
 
 Bags: ``run_evaluation --protocol dynamic --rig-profile realistic --speeds 40 100
 --runs 3`` and ``--protocol static --trials 3 --rig-profile realistic`` (the same seeds
@@ -23,6 +23,7 @@ import pathlib
 import tempfile
 
 import numpy as np
+import yaml
 
 from train_localizer.core.disparity_map_file import save_disparity_map
 from train_localizer.node_parameters import load_mount
@@ -33,9 +34,9 @@ def installation(bag):
     return (bag.parent / (bag.name + '.installation') / 'truth' / 'truth.yaml').read_text()
 
 
-def replay(bag, path, use):
+def replay(bag, path, use, params=None):
     """(result, published σ of the last pose); writes what a dynamic run learnt."""
-    res = lr.replay_with_belief(bag, {'use_disparity_map': use,
+    res = lr.replay_with_belief(bag, {**(params or {}), 'use_disparity_map': use,
                                       'disparity_map_path': str(path) if use else ''})
     dm = res.localizer.disparity_map
     if use and 'static' not in bag.name and dm is not None and dm.run:
@@ -71,7 +72,16 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     parser.add_argument('bags', nargs='+', type=pathlib.Path)
     parser.add_argument('--rounds', type=int, default=3)
+    parser.add_argument('--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='a localizer parameter for every replay (YAML value), e.g. '
+                             'systematic_weight_inflation:=1.0')
     args = parser.parse_args(argv)
+    params = {}
+    for item in args.param:
+        name, sep, value = item.partition(':=')
+        if not sep:
+            parser.error(f'--param {item!r}: expected NAME:=VALUE')
+        params[name] = yaml.safe_load(value)
     groups = collections.defaultdict(list)
     for bag in args.bags:
         groups[installation(bag)].append(bag)
@@ -87,7 +97,7 @@ def main(argv=None):
             for key, bags in groups.items():
                 order = sorted(bags, key=lambda b: ('static' in b.name, b.name))
                 for bag in order:
-                    score(bag, replay(bag, paths[key], use), out)
+                    score(bag, replay(bag, paths[key], use, params), out)
             name = 'off' if not use else (f'learnt, round {r}'
                                           + (' (from no map)' if r == 0 else ''))
             print(f'| {name} | ' + ' | '.join(cells(out[v]) for v in speeds)
