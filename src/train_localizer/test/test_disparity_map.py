@@ -31,6 +31,8 @@ from vlc_stereo_camera.core.upstream import (
 
 GEOMETRY = RigGeometry(fx=1040.0, fy=1040.0, cx=640.0, cy=360.0, baseline_m=0.12)
 FB = GEOMETRY.fx * GEOMETRY.baseline_m
+#: What the map learns of itself, with no cell borrowed from a neighbour.
+OWN = DisparityMapConfig(extrapolate_cells=0)
 
 
 def field(u):
@@ -70,7 +72,7 @@ def lamp_pass(dm, uid, rng, ranges=RANGES_M, state_sigma_m=0.01, state_error_m=0
 
 
 def test_the_field_is_learnt_where_the_reference_allows_and_nowhere_else():
-    dm = DisparityMap()
+    dm = DisparityMap(OWN)
     rng = np.random.default_rng(1)
     lamp_pass(dm, 0x1001, rng)
     # one lamp pass: nothing is used yet (a single lamp could be off its survey)
@@ -88,12 +90,46 @@ def test_the_field_is_learnt_where_the_reference_allows_and_nowhere_else():
     cells, residuals, mean_abs = dm.summary()
     assert cells >= 1 and residuals > 0 and 0.3 < mean_abs < 1.2
     # against a 3 cm reference the near lamps say little about the disparity (0.3 px at
-    # 3 m): their cells stay unknown, the far ones are learnt; nothing is extrapolated
-    dm = DisparityMap()
+    # 3 m): their cells stay unknown, the far ones are learnt
+    dm = DisparityMap(OWN)
     for uid in (1, 2):
         lamp_pass(dm, uid, rng, state_sigma_m=0.03)
     assert dm.correction(spot_u(12.0), 320.0) is not None
     assert dm.correction(spot_u(3.0), 320.0) is None
+
+
+def test_an_unknown_cell_borrows_the_nearest_learnt_one_with_a_wider_sigma():
+    """Against a 3 cm reference the near lamps' cells are not learnt (above); a cell
+    within ``extrapolate_cells`` of a learnt one borrows its offset, and the σ it states
+    covers the true field there; farther cells stay unknown; a borrowed estimate follows
+    its source as it learns.
+    """
+    rng = np.random.default_rng(5)
+    own, dm = DisparityMap(OWN), DisparityMap()
+    for uid in (1, 2):
+        lamp_pass(own, uid, rng, state_sigma_m=0.03)
+    dm.run = {k: dataclasses.replace(c) for k, c in own.run.items()}
+    learnt = sorted(k[0] for k in own.cells() if own._estimate(k) is not False)
+    row_v = 320.0
+    edge = learnt[-1]                              # the learnt cell nearest the near lamps
+    c = dm.config.cell_px
+    for di in (1, 2, 3):
+        u = (edge + di + 0.5) * c
+        assert own.correction(u, row_v) is None
+        delta, sigma = dm.correction(u, row_v)
+        source, source_sigma = own.correction((edge + 0.5) * c, row_v)
+        assert delta == pytest.approx(own._estimate((edge, int(row_v // c)))[0])
+        assert sigma == pytest.approx(source_sigma + 0.5 * abs(delta))
+        assert abs(delta - field(u)) <= sigma      # what it states holds
+    assert dm.correction((edge + 4 + 0.5) * c, row_v) is None     # beyond the reach
+    assert dm.correction((edge + 0.5) * c, 700.0) is None        # six rows away
+    before = dm.correction((edge + 1.5) * c, row_v)
+    for _ in range(40):                             # the source cell learns more
+        dm.add((edge + 0.5) * c, row_v, 1.0, 0.03, 0x1009)
+    after = dm.correction((edge + 1.5) * c, row_v)
+    assert after[0] > before[0] + 0.1
+    with pytest.raises(ValueError, match='extrapolat'):
+        DisparityMapConfig(extrapolate_cells=-1)
 
 
 def test_a_filter_too_uncertain_is_no_reference():
@@ -111,7 +147,7 @@ def test_a_biased_reference_moves_the_map_by_what_it_maps_to():
     """A filter 2 cm off moves the learnt far cells by ≈ fx·b·along/r³·2 cm (≤ 0.03 px
     beyond 8 m, plus noise), not by the decimetres of range error a far lamp's disparity has.
     """
-    dm = DisparityMap()
+    dm = DisparityMap(OWN)
     rng = np.random.default_rng(3)
     for uid in (1, 2, 3):
         lamp_pass(dm, uid, rng, state_error_m=0.02)
@@ -123,7 +159,7 @@ def test_a_biased_reference_moves_the_map_by_what_it_maps_to():
 
 def test_kept_cells_add_to_this_run_and_round_trip(tmp_path):
     rng = np.random.default_rng(4)
-    first = DisparityMap()
+    first = DisparityMap(OWN)
     lamp_pass(first, 1, rng)
     lamp_pass(first, 2, rng)
     path = tmp_path / 'disparity_map.yaml'
@@ -131,7 +167,7 @@ def test_kept_cells_add_to_this_run_and_round_trip(tmp_path):
     cells, runs, fx_b = load_disparity_map(path, 'train_7', 64.0)
     assert runs == 1 and fx_b == pytest.approx(FB)
     assert cells == first.cells()                  # YAML keeps every float exactly
-    second = DisparityMap(kept=cells, kept_fx_b=fx_b)
+    second = DisparityMap(OWN, kept=cells, kept_fx_b=fx_b)
     assert second.check_calibration(FB) == ''
     u = next(u for u in range(0, 1400, 8) if first.correction(u, 320.0) is not None)
     assert second.correction(u, 320.0) == pytest.approx(first.correction(u, 320.0))
@@ -139,7 +175,7 @@ def test_kept_cells_add_to_this_run_and_round_trip(tmp_path):
     key = second._key(u, 320.0)
     assert second.cell(key).passes == first.cell(key).passes + 1
     # learnt on another calibration: the kept cells are dropped, learning starts afresh
-    other = DisparityMap(kept=cells, kept_fx_b=fx_b)
+    other = DisparityMap(OWN, kept=cells, kept_fx_b=fx_b)
     assert 'this calibration has' in other.check_calibration(FB * 1.01)
     assert other.correction(u, 320.0) is None and not other.kept
 

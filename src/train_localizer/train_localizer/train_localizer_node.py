@@ -161,6 +161,10 @@ PARAMETERS = (
                                      "learnt afresh every run.")),
     ('disparity_map_save_s', 10.0, _desc('Steady-clock period of writing the disparity map, s.',
                                          1.0, 3600.0)),
+    ('disparity_map_extrapolate_cells', 3, _desc('A cell of the image no lamp taught the '
+                                                 'map borrows the nearest learnt cell this '
+                                                 'many cells away, with a wider sigma; 0 = '
+                                                 'off.', 0, 16, integer=True)),
     ('lamp_refinement_path', '', _desc("Lamp-map refinement file of the line (surveying by "
                                        "train, core/lamp_refinement.py): read at start and "
                                        "applied to the surveyed map, this run's lamp "
@@ -597,7 +601,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             max_speed_mps=p['max_speed_mps'], init_lookback_s=p['init_lookback_s'],
             self_survey=(SelfSurveyConfig(refine_map=False)
                          if p['use_self_calibration'] else None),
-            disparity_map=DisparityMapConfig() if p['use_disparity_map'] else None)
+            disparity_map=(DisparityMapConfig(
+                extrapolate_cells=p['disparity_map_extrapolate_cells'])
+                if p['use_disparity_map'] else None))
 
     # ------------------------------------------------------------------ inputs
     def _guarded(self, topic, stamp_ns, item):

@@ -30,11 +30,19 @@ lamps, is then a reference the far lamps' disparity cannot pull with it.
 **Model.** The image is cut into square cells (``cell_px``) of the rectified left image;
 each cell keeps the sufficient statistics of a weighted straight line ``δd = a + b·(u −
 u_c)`` over its residuals (slope prior ``slope_sigma``), and counts the lamp passes (one
-lamp, one run) behind it. A cell is used once ``min_passes`` passes are in it; a spot
-in a cell with no data gets no correction — nothing is extrapolated. Its 1σ: the larger
-of the line's statistical 1σ and the residual scatter over √passes (the residuals of
-one pass share the reference's error), times ``sigma_inflation``, never below
-``sigma_floor_px``; the fix states it in place of the calibration's disparity σ.
+lamp, one run) behind it. A cell is used once ``min_passes`` passes are in it. Its 1σ:
+the larger of the line's statistical 1σ and the residual scatter over √passes (the
+residuals of one pass share the reference's error), times ``sigma_inflation``, never
+below ``sigma_floor_px``; the fix states it in place of the calibration's disparity σ.
+
+**Cells no pass reaches.** The residuals come from lamps ≥ ``min_along_m`` ahead whose
+reference is good, so the image's outer columns, where a lamp 1–5 m ahead of a standing
+train stands, are rarely learnt. The error is smooth over the image (the terms above), so
+such a cell borrows the offset of the nearest learnt cell at most
+``extrapolate_cells`` cells away (Euclidean in cells; ties: the nearer column, then
+the nearer row), with the borrowed cell's 1σ plus ``extrapolation_sigma_fraction`` of the
+offset, so a fix leans on it only as far as it may be wrong (0 cells: off, such a spot
+keeps the calibration's σ).
 
 **Kept by the train.** The cells' sums are what the kept file holds
 (:mod:`.disparity_map_file`): a new run adds to them, so passes accumulate; the vehicle
@@ -59,6 +67,8 @@ class DisparityMapConfig:
     sigma_floor_px: float = 0.1            # the stated σ never falls below this
     max_state_sigma_m: float = 0.05        # a less certain filter is no reference
     min_along_m: float = 1.0               # lamps nearer along the track: not used
+    extrapolate_cells: int = 3             # unknown cell: nearest learnt one this near
+    extrapolation_sigma_fraction: float = 0.5  # of the borrowed offset, added to its 1σ
 
     def __post_init__(self):
         values = (self.cell_px, self.max_reference_sigma_px, self.noise_px,
@@ -68,6 +78,11 @@ class DisparityMapConfig:
             raise ValueError('disparity map: cell size, sigmas and inflation must be > 0')
         if int(self.min_passes) < 1:
             raise ValueError('disparity map: min_passes must be >= 1')
+        if int(self.extrapolate_cells) < 0 or not (
+                math.isfinite(float(self.extrapolation_sigma_fraction))
+                and float(self.extrapolation_sigma_fraction) >= 0.0):
+            raise ValueError('disparity map: extrapolate_cells and '
+                             'extrapolation_sigma_fraction must be >= 0')
 
 
 #: The sums a cell keeps (weighted: w = 1/σ², x = u − u_c, y = δd).
@@ -127,7 +142,8 @@ class DisparityMap:
         self.refused = ''             # why the kept cells were dropped ('' = they were not)
         self.run = {}                 # (i, j) -> Cell of this run
         self._passes = set()          # (cell, lamp uid) counted this run
-        self._cache = {}
+        self._cache = {}              # key -> estimate in use (own or borrowed)
+        self._own_cache = {}          # key -> the cell's own estimate
 
     def _key(self, u, v):
         c = self.config.cell_px
@@ -156,22 +172,32 @@ class DisparityMap:
                             f'{fx_b_px_m:.6g}: learning afresh')
             self.kept = {}
             self._cache.clear()
+            self._own_cache.clear()
         return self.refused
 
     def correction(self, u, v):
-        """(δd px, 1σ px) for a spot at rectified (u, v), or None where the map does not
-        know the cell (fewer than ``min_passes`` passes): no correction, the calibration's
-        σ stands.
+        """(δd px, 1σ px) for a spot at rectified (u, v), or None where the map neither
+        knows the cell (fewer than ``min_passes`` passes) nor a learnt cell within
+        ``extrapolate_cells``: no correction, the calibration's σ stands.
         """
         key = self._key(u, v)
         est = self._cache.get(key)
         if est is None:
-            est = self._estimate(key)
+            est = self._own(key)
+            if est is False and self.config.extrapolate_cells > 0:
+                est = self._borrowed(key)
             self._cache[key] = est
         if est is False:
             return None
         a, b, sigma, centre = est
         return a + b * (u - centre), sigma
+
+    def _own(self, key):
+        """:meth:`_estimate` of a cell, memoised until the cell gets a residual."""
+        est = self._own_cache.get(key)
+        if est is None:
+            est = self._own_cache[key] = self._estimate(key)
+        return est
 
     def _estimate(self, key):
         c = self.config
@@ -182,6 +208,29 @@ class DisparityMap:
         sigma = max(math.sqrt(max(cov[0, 0], 0.0)),
                     math.sqrt(scatter2 / cell.passes)) * c.sigma_inflation
         return a, b, max(sigma, c.sigma_floor_px), (key[0] + 0.5) * c.cell_px
+
+    def _borrowed(self, key):
+        """The nearest learnt cell's offset for an unknown cell (module docstring), as
+        a flat line with a widened 1σ; False when none is near enough.
+        """
+        c = self.config
+        reach = int(c.extrapolate_cells)
+        best = None
+        for other in set(self.kept) | set(self.run):
+            di, dj = other[0] - key[0], other[1] - key[1]
+            dist2 = di * di + dj * dj
+            if dist2 == 0 or dist2 > reach * reach:
+                continue
+            rank = (dist2, abs(di), abs(dj), other)
+            if best is not None and rank >= best[0]:
+                continue
+            est = self._own(other)
+            if est is not False:
+                best = (rank, est)
+        if best is None:
+            return False
+        a, _, sigma, _ = best[1]
+        return a, 0.0, sigma + c.extrapolation_sigma_fraction * abs(a), 0.0
 
     # ------------------------------------------------------------------ data
     def residual(self, uv_left, v_mean, disparity_px, lamp_position_m, camera_position_m,
@@ -217,7 +266,8 @@ class DisparityMap:
         if (key, int(lamp_uid)) not in self._passes:
             self._passes.add((key, int(lamp_uid)))
             cell.passes += 1
-        self._cache.pop(key, None)
+        self._own_cache.pop(key, None)
+        self._cache.clear()           # a borrowed estimate may now come from this cell
 
     def summary(self):
         """(cells in use, residuals this run, mean |δd| of the cells in use, px)."""
