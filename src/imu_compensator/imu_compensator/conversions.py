@@ -55,6 +55,28 @@ def _covariance(values):
     return cov
 
 
+#: {(field bytes, mount bytes): covariance in base_link or None}: a driver states the
+#: same raw covariances in every message, so they are read and rotated once.
+_IN_BASE = {}
+
+
+def _covariance_in_base(values, r_base_imu):
+    """:func:`_covariance` of a raw message field rotated into ``base_link`` (a fresh
+    array each call), memoised on the field's and the mount's values.
+    """
+    key = (np.asarray(values, dtype=float).tobytes(),
+           None if r_base_imu is None else r_base_imu.tobytes())
+    cov = _IN_BASE.get(key, False)
+    if cov is False:
+        cov = _covariance(values)
+        if cov is not None and r_base_imu is not None:
+            cov = r_base_imu @ cov @ r_base_imu.T
+        if len(_IN_BASE) > 64:
+            _IN_BASE.clear()
+        _IN_BASE[key] = cov
+    return None if cov is None else cov.copy()
+
+
 def fill_imu_data(out, header, result, orientation_floor_var_rad2, gyro_white_var,
                   gyro_bias_var, rate_cov_in, accel_cov_in, r_base_imu=None):
     """Write one compensated sample into the reusable message ``out``; returns it.
@@ -83,31 +105,28 @@ def fill_imu_data(out, header, result, orientation_floor_var_rad2, gyro_white_va
     q = result.quat_xyzw
     o = out.orientation
     o.x, o.y, o.z, o.w = float(q[0]), float(q[1]), float(q[2]), float(q[3])
-    cov = result.covariance.copy()
-    cov.flat[::4] += orientation_floor_var_rad2
-    out.orientation_covariance = cov.ravel().tolist()
+    # (float64 arrays of 9 go into the message as they are; a list is checked item by
+    # item by the generated setter)
+    cov = np.array(result.covariance, dtype=float).reshape(9)
+    cov[::4] += orientation_floor_var_rad2
+    out.orientation_covariance = cov
 
     w = result.gyro_rps
     av = out.angular_velocity
     av.x, av.y, av.z = float(w[0]), float(w[1]), float(w[2])
-    rate_cov = _covariance(rate_cov_in)
+    rate_cov = _covariance_in_base(rate_cov_in, r_base_imu)
     if rate_cov is None:
         rate_cov = np.eye(3) * gyro_white_var
-    elif r_base_imu is not None:
-        rate_cov = r_base_imu @ rate_cov @ r_base_imu.T
-    rate_cov = rate_cov + np.diag(gyro_bias_var)
-    out.angular_velocity_covariance = rate_cov.ravel().tolist()
+    rate_cov = rate_cov.reshape(9)
+    rate_cov[::4] += gyro_bias_var
+    out.angular_velocity_covariance = rate_cov
 
     f = result.accel_mps2
     la = out.linear_acceleration
     la.x, la.y, la.z = float(f[0]), float(f[1]), float(f[2])
-    acc_cov = _covariance(accel_cov_in)
-    if acc_cov is None:
-        out.linear_acceleration_covariance = [-1.0] + [0.0] * 8
-    else:
-        if r_base_imu is not None:
-            acc_cov = r_base_imu @ acc_cov @ r_base_imu.T
-        out.linear_acceleration_covariance = acc_cov.ravel().tolist()
+    acc_cov = _covariance_in_base(accel_cov_in, r_base_imu)
+    out.linear_acceleration_covariance = (
+        np.array([-1.0] + [0.0] * 8) if acc_cov is None else acc_cov.reshape(9))
     return out
 
 

@@ -207,3 +207,23 @@ def test_an_absurd_exposure_offset_is_treated_as_unknown():
     [obs] = observations_from_spots(10 ** 18, rec)
     assert math.isnan(obs.exposure_mid_offset_s)
     assert abs(measurement_time_ns(obs, RigGeometry()) - 10 ** 18) < 10 ** 8
+
+
+def test_the_bounds_check_without_eigh_agrees_with_eigh():
+    """Covariances the shortcut passes as they are (positive definite, in bounds) are
+    those eigh passes; the others are clipped by eigh as before.
+    """
+    rng = np.random.default_rng(11)
+    for scale in (1e-8, 1e-4, 1.0, 3.0):
+        for _ in range(200):
+            a = rng.normal(size=(3, 3)) * math.sqrt(scale)
+            cov = a @ a.T + np.diag(rng.uniform(0.0, scale, 3))
+            values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+            expected = (0.5 * (cov + cov.T) if np.all((values >= 0.0)
+                                                      & (values <= math.pi ** 2))
+                        else (vectors * np.clip(values, 0.0, math.pi ** 2)) @ vectors.T)
+            np.testing.assert_allclose(conversions._bounded_covariance(cov), expected,
+                                       rtol=1e-9, atol=1e-12 * scale)
+    singular = np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0]) * 1e-4
+    np.testing.assert_allclose(conversions._bounded_covariance(singular), singular,
+                               atol=1e-15)

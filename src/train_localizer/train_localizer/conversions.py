@@ -58,6 +58,16 @@ def records_from_cloud(msg, topic, required=()):
 def _bounded_covariance(cov):
     """Symmetric part of ``cov`` with its eigenvalues clipped to [0, MAX_ATTITUDE_VAR_RAD2]."""
     sym = 0.5 * (cov + cov.T)
+    # Positive definite with its largest eigenvalue in bounds settles it without eigh
+    # (a tenth of the time, at 400 Hz): leading minors positive (Sylvester), the smallest
+    # eigenvalue ≥ det/trace² above 1e-9 of the trace (far above eigh's rounding), all
+    # eigenvalues ≤ the trace ≤ the bound.
+    (a, b, c), (_, d, e), (_, _, f) = sym.tolist()
+    trace = a + d + f
+    det = a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d)
+    if (trace <= MAX_ATTITUDE_VAR_RAD2 and a > 0.0 and a * d - b * b > 0.0
+            and det > 1e-9 * trace * trace * trace):
+        return sym
     values, vectors = np.linalg.eigh(sym)
     if np.all((values >= 0.0) & (values <= MAX_ATTITUDE_VAR_RAD2)):
         return sym

@@ -58,3 +58,22 @@ def test_slerp_is_exact_for_a_constant_rate_rotation_and_takes_the_short_arc():
 def test_wrap_angle():
     np.testing.assert_allclose(wrap_angle([np.pi + 0.1, -np.pi - 0.1, 0.3]),
                                [-np.pi + 0.1, np.pi - 0.1, 0.3], atol=1e-12)
+
+
+def test_one_quaternion_gives_the_array_codes_numbers():
+    """The float path for one quaternion (the IMU nodes' 400 Hz calls) returns exactly
+    what the array code returns for it in a batch of one, and NaNs where it would.
+    """
+    rng = np.random.default_rng(7)
+    quats = np.vstack([rng.normal(size=(500, 4)),
+                       np.column_stack([rng.normal(0.0, 1e-3, (500, 3)), np.ones(500)]),
+                       [[0.0, 0.0, 0.0, 2.0], [1e-200, 0.0, 0.0, 1e-200]]])
+    for q in quats:
+        np.testing.assert_array_equal(quat_to_matrix(q), quat_to_matrix(q[None])[0])
+        np.testing.assert_array_equal(quat_to_rpy(q), quat_to_rpy(q[None])[0])
+    with np.errstate(invalid='ignore', divide='ignore'):
+        for bad in ([0.0, 0.0, 0.0, 0.0], [np.nan, 0.0, 0.0, 1.0], [np.inf, 0.0, 0.0, 1.0]):
+            q = np.array(bad)
+            assert np.isnan(quat_to_matrix(q)).any() and np.isnan(quat_to_rpy(q)).any()
+            np.testing.assert_array_equal(quat_to_matrix(q), quat_to_matrix(q[None])[0])
+            np.testing.assert_array_equal(quat_to_rpy(q), quat_to_rpy(q[None])[0])

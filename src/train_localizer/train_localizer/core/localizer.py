@@ -448,8 +448,10 @@ class Localizer:
             self._append_step(t, a_in, sample.gyro_rps)
             if gap:
                 self._bridge_gap(t, previous_ns, previous_received, report)
-        standing = self._standstill.push(t, sample.gyro_rps, sample.accel_mps2)
-        if standing and cfg.standstill.enabled:
+        # the window's statistics only when the filter would take an update (a moving
+        # train fails the speed test first: 0.1 ms per sample saved at 400 Hz)
+        self._standstill.add(t, sample.gyro_rps, sample.accel_mps2)
+        if cfg.standstill.enabled:
             self._zero_velocity(t)
         self._process_pending(report)
         self._emit(report)
@@ -551,7 +553,9 @@ class Localizer:
         return self._track_frame()[1]
 
     def _zero_velocity(self, t):
-        """Zero-velocity update at the newest step if the filter's speed allows it."""
+        """Zero-velocity update at the newest step if the filter's speed allows it and the
+        IMU's window is quiet.
+        """
         cfg = self.config.standstill
         state = self._steps.x[-1]
         if state is None or not self.config.use_kalman:
@@ -560,6 +564,8 @@ class Localizer:
         if self._last_zupt_ns is not None and t - self._last_zupt_ns < period_ns:
             return
         if not StandstillDetector.speed_allows_update(state.x[1], state.P[1, 1], cfg):
+            return
+        if not self._standstill.quiet():
             return
         self._last_zupt_ns = t
         self._steps.add_update(len(self._steps) - 1,

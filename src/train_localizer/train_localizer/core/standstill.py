@@ -68,11 +68,22 @@ class StandstillDetector:
 
     def push(self, t_ns, gyro_rps, accel_mps2):
         """Add a sample; returns True when the window is full and quiet."""
-        cfg = self.config
+        self.add(t_ns, gyro_rps, accel_mps2)
+        return self.quiet()
+
+    def add(self, t_ns, gyro_rps, accel_mps2):
+        """Add a sample and drop those older than the window (no statistics yet)."""
         self._samples.append((t_ns, np.concatenate([gyro_rps, accel_mps2])))
-        horizon = t_ns - int(cfg.window_s * 1e9)
+        horizon = t_ns - int(self.config.window_s * 1e9)
         while self._samples and self._samples[0][0] < horizon:
             self._samples.popleft()
+
+    def quiet(self):
+        """True when the window (up to the newest sample added) is full and quiet."""
+        cfg = self.config
+        if not self._samples:
+            return False
+        horizon = self._samples[-1][0] - int(cfg.window_s * 1e9)
         if len(self._samples) < 8 or self._samples[0][0] - horizon > 0.2 * cfg.window_s * 1e9:
             return False
         std = np.std(np.array([s[1] for s in self._samples]), axis=0)

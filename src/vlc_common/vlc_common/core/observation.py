@@ -6,6 +6,7 @@ integer nanoseconds of the sensor clock (ROS stamps), so joins by stamp are exac
 published stamps land exactly on the publish grid.
 """
 from dataclasses import dataclass, field
+import math
 
 import numpy as np
 
@@ -94,8 +95,11 @@ class ImuSample:
 
     def is_finite(self):
         """True when stamp, specific force, rate and (if given) attitude are usable."""
-        ok = np.all(np.isfinite(self.accel_mps2)) and np.all(np.isfinite(self.gyro_rps))
+        # (floats, not array calls: the localizer asks at every IMU sample)
+        values = self.accel_mps2.tolist() + self.gyro_rps.tolist()
         if self.quat_xyzw is not None:
-            ok = ok and np.all(np.isfinite(self.quat_xyzw)) and np.linalg.norm(
-                self.quat_xyzw) > 1e-6
-        return bool(ok)
+            q = self.quat_xyzw.tolist()
+            if not math.sqrt(sum(v * v for v in q)) > 1e-6:     # (NaN fails here too)
+                return False
+            values += q
+        return all(map(math.isfinite, values))
