@@ -165,6 +165,10 @@ PARAMETERS = (
                                                  'map borrows the nearest learnt cell this '
                                                  'many cells away, with a wider sigma; 0 = '
                                                  'off.', 0, 16, integer=True)),
+    ('disparity_map_max_state_sigma_m', 0.10, _desc('The filter is a reference for the '
+                                                    'disparity map only while its stated '
+                                                    'chainage sigma is below this, m.',
+                                                    0.001, 1.0)),
     ('lamp_refinement_path', '', _desc("Lamp-map refinement file of the line (surveying by "
                                        "train, core/lamp_refinement.py): read at start and "
                                        "applied to the surveyed map, this run's lamp "
@@ -602,7 +606,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             self_survey=(SelfSurveyConfig(refine_map=False)
                          if p['use_self_calibration'] else None),
             disparity_map=(DisparityMapConfig(
-                extrapolate_cells=p['disparity_map_extrapolate_cells'])
+                extrapolate_cells=p['disparity_map_extrapolate_cells'],
+                max_state_sigma_m=p['disparity_map_max_state_sigma_m'])
                 if p['use_disparity_map'] else None))
 
     # ------------------------------------------------------------------ inputs

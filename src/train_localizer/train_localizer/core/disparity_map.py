@@ -65,7 +65,7 @@ class DisparityMapConfig:
     slope_sigma: float = 0.002             # prior 1σ of the in-cell slope, px per px
     sigma_inflation: float = 3.0
     sigma_floor_px: float = 0.1            # the stated σ never falls below this
-    max_state_sigma_m: float = 0.05        # a less certain filter is no reference
+    max_state_sigma_m: float = 0.10        # a less certain filter is no reference
     min_along_m: float = 1.0               # lamps nearer along the track: not used
     extrapolate_cells: int = 3             # unknown cell: nearest learnt one this near
     extrapolation_sigma_fraction: float = 0.5  # of the borrowed offset, added to its 1σ
