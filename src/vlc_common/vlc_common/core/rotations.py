@@ -128,40 +128,28 @@ def quat_to_rotvec(q):
 def quat_to_matrix(q):
     """Unit quaternion (..., 4) → rotation matrix (..., 3, 3), body → parent."""
     q = np.asarray(q, dtype=float)
-    if q.shape == (4,):
-        unit = _unit_components(q)
-        if unit is not None:
-            return _quat_to_matrix_one(*unit)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.moveaxis(np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]), (0, 1), (-2, -1))
-
-
-def _unit_components(q):
-    """(x, y, z, w) floats of one quaternion (4,) over its norm, rounded as the array
-    code rounds them (the sum of squares in order, then the square root); None when
-    the norm is zero or not finite (the array code's NaNs then).
-    """
-    x, y, z, w = q.tolist()
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    if not 0.0 < n < math.inf:
-        return None
-    return x / n, y / n, z / n, w / n
-
-
-def _quat_to_matrix_one(x, y, z, w):
-    """:func:`quat_to_matrix` of one unit quaternion in floats: the same numbers, a
-    fraction of the array code's time (the IMU paths call it at every sample).
-    """
-    return np.array([
+    x, y, z, w = _unit_xyzw(q)
+    m = np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
     ])
+    return m if m.ndim == 2 else np.moveaxis(m, (0, 1), (-2, -1))
+
+
+def _unit_xyzw(q):
+    """(x, y, z, w) of ``q`` (..., 4) over its norm. One finite, non-zero quaternion (the
+    IMU paths' call at every sample) as floats, a fraction of the array code's time and
+    rounded as it rounds them (the sum of squares in order, then the square root); any
+    other input as arrays (NaNs where the norm is zero or not finite).
+    """
+    if q.shape == (4,):
+        x, y, z, w = q.tolist()
+        n = math.sqrt(x * x + y * y + z * z + w * w)
+        if 0.0 < n < math.inf:
+            return x / n, y / n, z / n, w / n
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q[..., 0], q[..., 1], q[..., 2], q[..., 3]
 
 
 def quat_from_rpy(roll, pitch, yaw):
@@ -182,17 +170,7 @@ def quat_from_rpy(roll, pitch, yaw):
 
 def quat_to_rpy(q):
     """Unit quaternion (..., 4) → (..., 3) roll, pitch, yaw with R = Rz·Ry·Rx."""
-    q = np.asarray(q, dtype=float)
-    unit = _unit_components(q) if q.shape == (4,) else None
-    if unit is not None:
-        x, y, z, w = unit
-        # numpy's arctan2 and arcsin, not math's: they differ in the last bits
-        return np.array([
-            np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)),
-            np.arcsin(min(1.0, max(-1.0, 2.0 * (w * y - z * x)))),
-            np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))])
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    x, y, z, w = _unit_xyzw(np.asarray(q, dtype=float))
     roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
     yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
