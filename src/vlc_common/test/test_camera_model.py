@@ -189,3 +189,14 @@ def test_invalid_stereo_pairs():
                                                                         [0] * 4]))
     with pytest.raises(CameraModelError, match='12 distortion coefficients'):
         distortion_model_of(np.zeros(12))
+
+
+@pytest.mark.parametrize('angles', [(49.0, 27.0, 0.0), (49.14, 26.52, 0.33), (-20.0, -40.0, 7.5),
+                                    (120.0, 10.0, -3.0)])
+def test_mount_angles_invert_the_mount_rotation(angles):
+    from vlc_common.core.camera import mount_angles, mount_rotation
+    back = mount_angles(mount_rotation(*angles))
+    np.testing.assert_allclose(back, angles, atol=1e-9)
+    # a small turn of the camera about its own axes comes back as a rotation of the mount
+    turned = mount_rotation(*angles) @ cv2.Rodrigues(np.array([1e-3, -2e-3, 5e-4]))[0]
+    np.testing.assert_allclose(mount_rotation(*mount_angles(turned)), turned, atol=1e-12)

@@ -57,9 +57,11 @@ def test_shipped_profiles_parse_and_harsh_is_about_three_times_realistic():
     assert set(profiles) == {'ideal', 'realistic', 'harsh'}
     assert profiles['ideal'].ideal and not profiles['realistic'].ideal
     r, h = profiles['realistic'], profiles['harsh']
+    # how the mount is measured (a share, not an error size) is the same in both
+    assert h.calibration['principal_point_in_mount'] == r.calibration['principal_point_in_mount']
     for section in ('calibration', 'mount'):
         for key, value in getattr(r, section).items():
-            if value:
+            if value and key != 'principal_point_in_mount':
                 assert getattr(h, section)[key] == pytest.approx(3.0 * value), (section, key)
     for key in ('survey_sigma_plan_m', 'survey_sigma_height_m', 'normal_tilt_sigma_deg',
                 'diameter_sigma', 'brightness_sigma', 'dead_fraction', 'gross_error_fraction'):
@@ -274,6 +276,48 @@ def test_mount_draws_have_the_profiles_statistics(realistic):
     assert _within(boresight.std(), m['imu_boresight_sigma_deg'])
     offsets = np.array([o for _, _, o in draws])
     assert _within(offsets.std(), m['imu_clock_offset_sigma_s'])
+
+
+
+def _ray_errors_rad(inst, uv):
+    """Angles (rad) between the base_link rays of raw pixels ``uv`` of the left camera
+    as the receivers see them (believed lens, rectification and measured mount) and as
+    they are (true lens and mount).
+    """
+    from vlc_common.core.camera import StereoCameraModel
+    truth = inst.optics.stereo_model(1280, 720).left
+    belief = StereoCameraModel(inst.calibration.left, inst.calibration.right).left
+    rays_true = np.column_stack([truth.undistort_normalized(uv), np.ones(len(uv))])
+    rays_belief = np.column_stack([belief.undistort_normalized(uv), np.ones(len(uv))])
+    d_true = rays_true @ inst.vehicle_truth.camera.R_base_cam.T
+    d_belief = rays_belief @ inst.vehicle_belief.camera.R_base_cam.T
+    d_true /= np.linalg.norm(d_true, axis=1)[:, None]
+    d_belief /= np.linalg.norm(d_belief, axis=1)[:, None]
+    return np.arccos(np.clip(np.sum(d_true * d_belief, axis=1), -1.0, 1.0))
+
+
+def test_a_mount_measured_through_the_calibration_takes_its_principal_point(realistic):
+    # A camera-to-body calibration with targets seen through the calibrated camera turns
+    # the measured mount by the principal point's error: with only the calibration's
+    # errors on (the mount measured without error), the believed rays then leave the
+    # camera where the true ones do to a fraction of the δ/f an independent mount
+    # measurement (share 0) leaves; the share is 1 in the shipped realistic profile.
+    assert realistic.calibration['principal_point_in_mount'] == 1.0
+    only = load_profile('realistic/only-calibration')
+    independent = dataclasses.replace(only, sections={
+        **only.sections, 'calibration': {**only.calibration, 'principal_point_in_mount': 0.0}})
+    uv = np.array([[u, v] for u in np.linspace(400, 880, 5) for v in np.linspace(200, 520, 5)])
+    taken, apart, expected = [], [], []
+    for seed in range(1, 9):
+        a = draw_installation(only, seed, VehicleMount())
+        b = draw_installation(independent, seed, VehicleMount())
+        assert a.vehicle_truth.camera.pitch_deg == b.vehicle_truth.camera.pitch_deg
+        taken.append(np.median(_ray_errors_rad(a, uv)))
+        apart.append(np.median(_ray_errors_rad(b, uv)))
+        expected.append(np.hypot(*a.calibration_error['principal_point_px'][0]) / 1040.0)
+    taken, apart, expected = map(np.array, (taken, apart, expected))
+    np.testing.assert_allclose(apart, expected, rtol=0.35)
+    assert np.all(taken < 0.35 * apart), (taken, apart)
 
 
 # ------------------------------------------------------------------ files

@@ -59,6 +59,21 @@ def mount_rotation(placement_angle_deg, pitch_deg, roll_deg=0.0):
     return np.column_stack([x0, y, z])
 
 
+def mount_angles(R_base_cam):
+    """(placement_angle_deg, pitch_deg, roll_deg) of a rotation: the inverse of
+    :func:`mount_rotation` (pitch within ±90°).
+    """
+    R = np.asarray(R_base_cam, dtype=float).reshape(3, 3)
+    x, z = R[:, 0], R[:, 2]
+    a = float(np.arctan2(z[0], z[1]))
+    p = float(np.arcsin(np.clip(-z[2], -1.0, 1.0)))
+    x0 = np.array([np.cos(a), -np.sin(a), 0.0])
+    y_p = (np.cos(p) * np.array([0.0, 0.0, -1.0])
+           - np.sin(p) * np.array([np.sin(a), np.cos(a), 0.0]))
+    r = float(np.arctan2(x @ y_p, x @ x0))
+    return float(np.degrees(a)), float(np.degrees(p)), float(np.degrees(r))
+
+
 @dataclass
 class StereoRig:
     """Rectified stereo pair rigidly mounted on ``base_link``."""

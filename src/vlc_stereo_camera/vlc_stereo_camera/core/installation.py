@@ -39,7 +39,7 @@ import numpy as np
 import yaml
 
 from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
-from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig
+from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig, mount_angles
 from vlc_common.core.config_files import config_path
 from vlc_common.core.lamp_map import Lamp, LampMap
 from vlc_common.core.vehicle import CameraMount, ImuMount, VehicleMount
@@ -68,7 +68,8 @@ _SCHEMA = {
     'calibration': {'reprojection_rms_px': 'number', 'focal_sigma': 'number',
                     'principal_point_sigma_px': 'number', 'k1_sigma': 'number',
                     'k2_sigma': 'number', 'k3_sigma': 'number', 'tangential_sigma': 'number',
-                    'rotation_sigma_deg': 'number', 'translation_sigma_m': 'number'},
+                    'rotation_sigma_deg': 'number', 'translation_sigma_m': 'number',
+                    'principal_point_in_mount': 'fraction'},
     'mount': {'camera_position_sigma_m': 'number', 'camera_angle_sigma_deg': 'number',
               'camera_position_measurement_sigma_m': 'number',
               'camera_angle_measurement_sigma_deg': 'number',
@@ -85,7 +86,8 @@ _SCHEMA = {
                'wall_reflection_fraction': 'fraction'},
 }
 #: Keys added after the first profiles: a profile file without them draws 0 (none).
-_OPTIONAL = {('lens', 'stamp_jitter_s'): 0.0, ('mount', 'imu_clock_drift_sigma_ppm'): 0.0}
+_OPTIONAL = {('lens', 'stamp_jitter_s'): 0.0, ('mount', 'imu_clock_drift_sigma_ppm'): 0.0,
+             ('calibration', 'principal_point_in_mount'): 0.0}
 #: A lamp's brightness factor is clipped to this range (a dead lamp is 0, drawn apart).
 BRIGHTNESS_RANGE = (0.2, 1.5)
 
@@ -560,6 +562,37 @@ def draw_vehicle(profile, seed, nominal):
     return truth, belief, draw_imu_clock(profile, seed)[0]
 
 
+def mount_through_calibration(belief, error, optics, share):
+    """The measured mount ``belief`` (VehicleMount) as a camera-to-body calibration made
+    *through* the calibrated camera finds it: ``share`` of the left camera's
+    principal-point error (``error['principal_point_px'][0]``, belief − truth) turns the
+    measured camera angles.
+
+    Targets seen through a camera model whose principal point is δ px off are explained
+    by a camera turned by δ/f (the whole image shifts by δ): the extrinsic fit takes that
+    turn into the mount angles, so the believed camera + the measured mount still point
+    every ray where it goes (to first order, exactly at the image centre). A mount
+    measured independently of the camera (a total station on its housing) keeps both
+    errors apart: ``share`` 0. The returned mount is a copy; ``belief`` unchanged when
+    there is nothing to take (no calibration error, no true optics, share 0).
+    """
+    if not share or not error or optics is None:
+        return belief
+    from vlc_common.core.rotations import rot_x, rot_y
+    dcx, dcy = (float(v) for v in np.asarray(error['principal_point_px'])[0])
+    a = share * dcx / optics.left.fx
+    b = share * dcy / optics.left.fy
+    # believed optical-frame direction = R_c · true direction (x − a, y − b); the
+    # extrinsic fit returns R_base_cam(believed) = R_base_cam(measured) · R_cᵀ
+    R_c = rot_y(-a) @ rot_x(b)
+    cam = belief.camera
+    placement, pitch, roll = mount_angles(cam.R_base_cam @ R_c.T)
+    out = copy.deepcopy(belief)
+    out.camera = CameraMount(position_m=np.array(cam.position_m, float),
+                             placement_angle_deg=placement, pitch_deg=pitch, roll_deg=roll)
+    return out
+
+
 def draw_imu_clock(profile, seed):
     """(offset_s, drift_ppm): the IMU clock against the camera's, stamp_imu − stamp_cam
     = offset + drift·1e-6·t (t: seconds since the start); (0, 0) for the ideal profile.
@@ -808,6 +841,8 @@ def draw_installation(profile, seed, vehicle, lamp_map=None, nominal=NominalCame
     offset, drift = draw_imu_clock(profile, seed)
     calibration, error = draw_calibration(profile, seed, optics, nominal,
                                           camera_name=vehicle.vehicle_id or 'stereo')
+    belief = mount_through_calibration(belief, error, optics, profile.calibration.get(
+        'principal_point_in_mount', 0.0))
     inst = Installation(profile=profile, seed=int(seed), nominal=nominal, optics=optics,
                         row_time_s=row_time, vehicle_truth=truth, vehicle_belief=belief,
                         imu_clock_offset_s=offset, calibration=calibration,
