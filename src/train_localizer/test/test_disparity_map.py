@@ -105,10 +105,13 @@ def test_an_unknown_cell_borrows_the_nearest_learnt_one_with_a_wider_sigma():
     its source as it learns.
     """
     rng = np.random.default_rng(5)
-    own, dm = DisparityMap(OWN), DisparityMap()
+    own, dm = DisparityMap(OWN), DisparityMap(DisparityMapConfig(extrapolate_cells=3))
+    wide = DisparityMap()                           # the default reach: 6 cells
+    assert wide.config.extrapolate_cells == 6
     for uid in (1, 2):
         lamp_pass(own, uid, rng, state_sigma_m=0.03)
     dm.run = {k: dataclasses.replace(c) for k, c in own.run.items()}
+    wide.run = {k: dataclasses.replace(c) for k, c in own.run.items()}
     learnt = sorted(k[0] for k in own.cells() if own._estimate(k) is not False)
     row_v = 320.0
     edge = learnt[-1]                              # the learnt cell nearest the near lamps
@@ -122,6 +125,11 @@ def test_an_unknown_cell_borrows_the_nearest_learnt_one_with_a_wider_sigma():
         assert sigma == pytest.approx(source_sigma + 0.5 * abs(delta))
         assert abs(delta - field(u)) <= sigma      # what it states holds
     assert dm.correction((edge + 4 + 0.5) * c, row_v) is None     # beyond the reach
+    for di in range(1, 7):                          # what the default reach states holds
+        u = (edge + di + 0.5) * c
+        delta, sigma = wide.correction(u, row_v)
+        assert abs(delta - field(u)) <= sigma, di
+    assert wide.correction((edge + 7 + 0.5) * c, row_v) is None
     assert dm.correction((edge + 0.5) * c, 700.0) is None        # six rows away
     before = dm.correction((edge + 1.5) * c, row_v)
     for _ in range(40):                             # the source cell learns more

@@ -161,7 +161,7 @@ PARAMETERS = (
                                      "learnt afresh every run.")),
     ('disparity_map_save_s', 10.0, _desc('Steady-clock period of writing the disparity map, s.',
                                          1.0, 3600.0)),
-    ('disparity_map_extrapolate_cells', 3, _desc('A cell of the image no lamp taught the '
+    ('disparity_map_extrapolate_cells', 6, _desc('A cell of the image no lamp taught the '
                                                  'map borrows the nearest learnt cell this '
                                                  'many cells away, with a wider sigma; 0 = '
                                                  'off.', 0, 16, integer=True)),

@@ -67,7 +67,7 @@ class DisparityMapConfig:
     sigma_floor_px: float = 0.1            # the stated σ never falls below this
     max_state_sigma_m: float = 0.10        # a less certain filter is no reference
     min_along_m: float = 1.0               # lamps nearer along the track: not used
-    extrapolate_cells: int = 3             # unknown cell: nearest learnt one this near
+    extrapolate_cells: int = 6             # unknown cell: nearest learnt one this near
     extrapolation_sigma_fraction: float = 0.5  # of the borrowed offset, added to its 1σ
 
     def __post_init__(self):
