@@ -57,3 +57,34 @@ def test_profile_dir_writes_a_profile_of_the_spin(tmp_path, monkeypatch):
     written = list((tmp_path / 'prof').iterdir())
     assert [p.name for p in written] == [f'some_node.{os.getpid()}.prof']
     assert any(key[2] == 'spin' for key in pstats.Stats(str(written[0])).stats)
+
+
+@pytest.mark.parametrize('clock', ['wall', 'cpu'])
+def test_profile_clock_charges_a_sleeping_spin_by_the_chosen_clock(tmp_path, monkeypatch,
+                                                                   clock):
+    import pstats
+    import time
+
+    from vlc_common.process import PROFILE_CLOCK_ENV, PROFILE_DIR_ENV, _profiled
+
+    def spin(node):
+        time.sleep(0.3)                                  # descheduled, no CPU
+        return 0
+
+    monkeypatch.setenv(PROFILE_DIR_ENV, str(tmp_path / clock))
+    monkeypatch.setenv(PROFILE_CLOCK_ENV, clock)
+    assert _profiled(spin, 'n')(None) == 0
+    stats = pstats.Stats(str(next((tmp_path / clock).iterdir())))
+    spin_total = next(v[3] for k, v in stats.stats.items() if k[2] == 'spin')
+    if clock == 'wall':
+        assert spin_total >= 0.29
+    else:
+        assert spin_total < 0.1
+
+
+def test_an_unknown_profile_clock_is_refused(tmp_path, monkeypatch):
+    from vlc_common.process import PROFILE_CLOCK_ENV, PROFILE_DIR_ENV, _profiled
+    monkeypatch.setenv(PROFILE_DIR_ENV, str(tmp_path))
+    monkeypatch.setenv(PROFILE_CLOCK_ENV, 'sundial')
+    with pytest.raises(ValueError, match='VLC_PROFILE_CLOCK'):
+        _profiled(lambda node: 0, 'n')
