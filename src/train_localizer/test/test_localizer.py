@@ -454,3 +454,22 @@ def test_a_departure_is_not_held_at_standstill(gate_chi2, holds):
         assert worst < 0.3
         assert np.all(np.abs(err[:, 0]) <= 3.0 * sigma[:, 0])
         assert abs(poses[-1].speed_mps - traj.sample([t[-1]]).speed_mps[0]) < 0.1
+
+
+def test_the_published_cross_track_sigma_is_the_pose_sigma_or_the_track_constraints():
+    """base_link's offset from its place on the track is stated as pose_sigma_yz_m (1 cm
+    by default: the car body over a poor track moves 7-11 mm), never below the fix's own
+    track constraint; along the track the filter's variance is untouched.
+    """
+    traj, events = scenario(40.0, 3.0, seed=2)
+    a = feed(make(), events)[0]
+    b = feed(make(pose_sigma_yz_m=(0.002, 0.03)), events)[0]
+    assert len(a) == len(b) > 10
+    for pa, pb in zip(a, b):
+        assert np.sqrt(pa.position_cov_m2[1, 1]) == pytest.approx(0.01)
+        assert np.sqrt(pa.position_cov_m2[2, 2]) == pytest.approx(0.01)
+        assert np.sqrt(pb.position_cov_m2[1, 1]) == pytest.approx(0.004)    # track_sigma
+        assert np.sqrt(pb.position_cov_m2[2, 2]) == pytest.approx(0.03)
+        assert pa.position_cov_m2[0, 0] == pb.position_cov_m2[0, 0]
+    with pytest.raises(ValueError, match='pose_sigma_yz_m'):
+        LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG), pose_sigma_yz_m=(0.01, -1.0))

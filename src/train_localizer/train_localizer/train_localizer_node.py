@@ -107,6 +107,10 @@ PARAMETERS = (
                             "straight, curved_demo, ...); '' = the one the lamp map names.")),
     ('publish_rate_hz', 50.0, _desc('Pose grid in sensor time, Hz.', 1.0, 1000.0)),
     ('publish_on_fix', True, _desc('Also publish right after each fix (lower latency).')),
+    ('pose_sigma_y_m', 0.01, _desc('1-sigma of the published pose across the track, m (at '
+                                   'least track_sigma_y_m).', 1e-6, 1.0)),
+    ('pose_sigma_z_m', 0.01, _desc('1-sigma of the published pose vertically, m (at least '
+                                   'track_sigma_z_m).', 1e-6, 1.0)),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
     ('imu_poll_period_s', 0.01, _desc('imu/data and camera_info are taken in batches this '
                                       'often (steady clock) and before every frame, off '
@@ -586,6 +590,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             standstill=standstill, use_imu_attitude=p['use_imu_attitude'],
             use_exposure_stamping=p['use_exposure_stamping'], use_kalman=p['use_kalman'],
             publish_rate_hz=p['publish_rate_hz'], publish_on_fix=p['publish_on_fix'],
+            pose_sigma_yz_m=(p['pose_sigma_y_m'], p['pose_sigma_z_m']),
             history_s=p['history_s'], imu_timeout_s=p['imu_timeout_s'],
             imu_max_gap_s=p['imu_max_gap_s'], backward_reset_s=p['backward_reset_s'],
             imu_backward_s=p['imu_backward_s'], blind_gap_s=p['blind_gap_s'],

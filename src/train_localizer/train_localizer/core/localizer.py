@@ -103,6 +103,11 @@ class LocalizerConfig:
         Pose grid in sensor time, Hz.
     publish_on_fix : bool
         Also publish right after a fix is applied (lower latency).
+    pose_sigma_yz_m : tuple of 2 floats
+        1σ of the published pose across the track and vertically, m (the larger of it
+        and the fix's ``track_sigma_yz_m``): base_link's offset from its nominal place,
+        which the fix's track constraint takes as a few mm but the car body on its
+        suspension over a poor track exceeds (7–11 mm on the ``harsh`` profile).
     history_s : float
         How far back a fix may be applied, s.
     imu_timeout_s : float
@@ -175,6 +180,7 @@ class LocalizerConfig:
     use_kalman: bool = True
     publish_rate_hz: float = 50.0
     publish_on_fix: bool = True
+    pose_sigma_yz_m: tuple = (0.01, 0.01)
     history_s: float = 1.0
     imu_timeout_s: float = 0.2
     imu_max_gap_s: float = 0.05
@@ -223,6 +229,11 @@ class LocalizerConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
+        self.pose_sigma_yz_m = tuple(float(v) for v in self.pose_sigma_yz_m)
+        if len(self.pose_sigma_yz_m) != 2 or not all(
+                math.isfinite(v) and v > 0.0 for v in self.pose_sigma_yz_m):
+            raise ValueError(f'pose_sigma_yz_m must be 2 finite values > 0, '
+                             f'got {self.pose_sigma_yz_m}')
 
 
 @dataclass
@@ -1124,7 +1135,8 @@ class Localizer:
     # ----------------------------------------------------------------- output
     def _position_cov(self, chainage_m, chainage_var):
         """Map covariance (3, 3): along the track, across it and vertical."""
-        sy, sz = self.config.fix.track_sigma_yz_m
+        sy, sz = (max(float(a), float(b)) for a, b in zip(self.config.fix.track_sigma_yz_m,
+                                                          self.config.pose_sigma_yz_m))
         return self.config.fix.track.covariance(chainage_m, chainage_var, sy * sy, sz * sz)
 
     def _orientation(self, t):
