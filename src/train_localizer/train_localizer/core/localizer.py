@@ -229,6 +229,7 @@ class LocalizerConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
+        self.imu_lever_arm_m = tuple(float(v) for v in self.imu_lever_arm_m)
         self.pose_sigma_yz_m = tuple(float(v) for v in self.pose_sigma_yz_m)
         if len(self.pose_sigma_yz_m) != 2 or not all(
                 math.isfinite(v) and v > 0.0 for v in self.pose_sigma_yz_m):
@@ -551,7 +552,6 @@ class Localizer:
                 alpha = np.zeros(3)
             # Rigid body: f_imu = f_base + α×r + ω×(ω×r) (3-vector cross products in
             # floats: np.cross costs ~15 µs a call, three per sample at 400 Hz).
-            r = tuple(float(v) for v in r)
             w_l = w.tolist()
             f = (np.asarray(f, dtype=float) - np.array(_cross3(alpha.tolist(), r))
                  - np.array(_cross3(w_l, _cross3(w_l, r))))

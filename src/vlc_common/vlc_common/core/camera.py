@@ -64,14 +64,13 @@ def mount_angles(R_base_cam):
     :func:`mount_rotation` (pitch within ±90°).
     """
     R = np.asarray(R_base_cam, dtype=float).reshape(3, 3)
-    x, z = R[:, 0], R[:, 2]
-    a = float(np.arctan2(z[0], z[1]))
-    p = float(np.arcsin(np.clip(-z[2], -1.0, 1.0)))
-    x0 = np.array([np.cos(a), -np.sin(a), 0.0])
-    y_p = (np.cos(p) * np.array([0.0, 0.0, -1.0])
-           - np.sin(p) * np.array([np.sin(a), np.cos(a), 0.0]))
-    r = float(np.arctan2(x @ y_p, x @ x0))
-    return float(np.degrees(a)), float(np.degrees(p)), float(np.degrees(r))
+    z = R[:, 2]
+    a = float(np.degrees(np.arctan2(z[0], z[1])))
+    p = float(np.degrees(np.arcsin(np.clip(-z[2], -1.0, 1.0))))
+    # the roll turns the unrolled mount's image axes about the optical axis
+    unrolled = mount_rotation(a, p)
+    r = float(np.degrees(np.arctan2(R[:, 0] @ unrolled[:, 1], R[:, 0] @ unrolled[:, 0])))
+    return a, p, r
 
 
 @dataclass

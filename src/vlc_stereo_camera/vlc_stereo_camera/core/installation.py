@@ -30,7 +30,7 @@ The ``ideal`` profile draws nothing: truth = belief = the nominal files and the 
 rectified pair (the rig as it always was).
 """
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import functools
 import math
 import pathlib
@@ -585,12 +585,9 @@ def mount_through_calibration(belief, error, optics, share):
     # believed optical-frame direction = R_c · true direction (x − a, y − b); the
     # extrinsic fit returns R_base_cam(believed) = R_base_cam(measured) · R_cᵀ
     R_c = rot_y(-a) @ rot_x(b)
-    cam = belief.camera
-    placement, pitch, roll = mount_angles(cam.R_base_cam @ R_c.T)
-    out = copy.deepcopy(belief)
-    out.camera = CameraMount(position_m=np.array(cam.position_m, float),
-                             placement_angle_deg=placement, pitch_deg=pitch, roll_deg=roll)
-    return out
+    placement, pitch, roll = mount_angles(belief.camera.R_base_cam @ R_c.T)
+    return replace(belief, camera=replace(belief.camera, placement_angle_deg=placement,
+                                          pitch_deg=pitch, roll_deg=roll))
 
 
 def draw_imu_clock(profile, seed):
