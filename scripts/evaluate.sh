@@ -11,7 +11,12 @@
 #  5. the error budget of the realistic profile (each error source alone), its table
 #     written into README.md;
 #  6. the fault protocol (one fault per run, alone on the machine), its table written
-#     into README.md and docs/arch/evaluation.md.
+#     into README.md and docs/arch/evaluation.md;
+#  7. the multi-pass protocol (two drawn trains run 10 times each, each pass a fresh
+#     graph reading what the last one kept; scored after 0, 1, 3, 10 passes, with the
+#     ablation rows), its table written into docs/arch/evaluation.md;
+#  8. departures and stops (stand, pull away, cruise, brake, stand), its table written
+#     into docs/arch/evaluation.md.
 # Bags, logs and report: out/eval/ (OUT=... to change).
 set -eo pipefail
 cd "$VLC_WS"
@@ -25,16 +30,34 @@ rm -f "$out/runs.jsonl" "$out/latency_runs.jsonl"
 # this evaluation's entries (a few GB at most).
 export VLC_RIG_CACHE_DIR="$(realpath -m "$out")/rig_cache"
 rm -rf "$VLC_RIG_CACHE_DIR"
-ros2run vlc_evaluation run_evaluation --protocol full --latency --out "$out"
-ros2run vlc_evaluation run_evaluation --protocol companions --ablations \
+# Each step's wall time, printed at the end and kept in $out/evaluate_times.txt (#21's
+# target is the whole evaluation's wall time on two cores).
+mkdir -p "$out"
+times="$out/evaluate_times.txt"
+echo "make evaluate, $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores" > "$times"
+step() {
+    local t0=$SECONDS
+    ros2run vlc_evaluation run_evaluation "$@"
+    n_step=$((n_step + 1))
+    echo "step $n_step: $((SECONDS - t0)) s  run_evaluation $*" >> "$times"
+}
+n_step=0
+step --protocol full --latency --out "$out"
+step --protocol companions --ablations \
     --ablation-trials 1 --ablation-runs 1 --out "$out"
-ros2run vlc_evaluation run_evaluation --protocol full --latency --ablations \
+step --protocol full --latency --ablations \
     --ablation-trials 1 --ablation-runs 1 --companions --outage --forged --rescore \
     --out "$out" --readme README.md \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md
-ros2run vlc_evaluation run_evaluation --protocol full --rig-profile realistic \
+step --protocol full --rig-profile realistic \
     --out "$out/realistic" --profile-docs README.md
-ros2run vlc_evaluation run_evaluation --protocol none --budget --out "$out/budget" \
+step --protocol none --budget --out "$out/budget" \
     --budget-docs README.md
-ros2run vlc_evaluation run_evaluation --protocol none --faults --out "$out/faults" \
+step --protocol none --faults --out "$out/faults" \
     --faults-docs README.md docs/arch/evaluation.md
+step --protocol none --passes 10 --passes-trains 11 12 \
+    --passes-ablations --out "$out/passes" --passes-docs docs/arch/evaluation.md
+step --protocol none --departures 3 --first-seed 11 \
+    --out "$out/departures" --departures-docs docs/arch/evaluation.md
+echo "total: $SECONDS s ($((SECONDS / 60)) min)" >> "$times"
+cat "$times"
