@@ -1,4 +1,5 @@
 """Frame pipeline: stereo pairing, tracking, right-image fallback; fed by the rig too."""
+import dataclasses
 import pathlib
 
 import numpy as np
@@ -147,6 +148,51 @@ def test_a_confirmed_track_never_carries_its_uid_to_another_lamp():
             for rec in tracker.process(int(j * 1e9 / 30), *_lamp_frame([lamp_b], j)):
                 wrong += rec.state == CONFIRMED and rec.uid != uid_a + 1
     assert wrong == 0
+
+
+def _two_spots_one_uid(frames=60, seed=3):
+    """A tracker fed two still spots that blink one UID (a duplicated lamp, a reflection):
+    (tracker, [records per frame], uid).
+    """
+    rng = np.random.default_rng(seed)
+    uid = 0x1000 | int(rng.integers(1, 4000))
+    lamps = [synth.SyntheticLamp(synth.LampSignal(uid, phase_s=rng.uniform(0, 0.01)),
+                                 u, 300.0, 20.0, 16.0, 60.0) for u in (400.0, 900.0)]
+    tracker = LampTracker(CFG)
+    out = [tracker.process(int(k * 1e9 / 30), *_lamp_frame(lamps, k)) for k in range(frames)]
+    return tracker, out, uid, lamps
+
+
+def test_one_uid_is_never_confirmed_on_two_spots_of_a_frame():
+    """Both spots decode the UID on tracks followed frame by frame: neither is reported
+    confirmed while the other is (without the rule both were), and the frames are counted.
+    """
+    tracker, out, uid, _ = _two_spots_one_uid()
+    assert all(sum(r.state == CONFIRMED for r in records) <= 1 for records in out)
+    assert tracker.duplicate_uid_frames > 0
+    # the tracks themselves decoded it (so the rule, not the decoding, withheld it)
+    assert [t.assembler.uid for t in tracker.tracks] == [uid, uid]
+
+
+def test_a_track_reaching_a_spot_after_a_gap_is_split_off_when_its_uid_is_taken():
+    """The stale track of the realistic rig's wrong UIDs: a confirmed track misses its
+    spot for two frames and then takes a spot 80 px off (inside its grown gate, not a
+    tight match) while another track holds a spot confirming the same UID: that spot
+    starts a new track (not confirmed), the other keeps its confirmed UID.
+    """
+    tracker, out, uid, lamps = _two_spots_one_uid()
+    k = len(out)
+    ids = {round(t.u): t.track_id for t in tracker.tracks}
+    for j in (k, k + 1):     # the spot at 900 px is not seen for two frames
+        tracker.process(int(j * 1e9 / 30), *_lamp_frame(lamps[:1], j))
+    moved = [lamps[0], dataclasses.replace(lamps[1], u_left=980.0)]
+    records = tracker.process(int((k + 2) * 1e9 / 30), *_lamp_frame(moved, k + 2))
+    by_u = {round(r.left.u / 100.0): r for r in records}
+    assert by_u[4].state == CONFIRMED and by_u[4].uid == uid
+    assert by_u[4].track_id == ids[400]
+    assert by_u[10].state != CONFIRMED
+    assert by_u[10].track_id not in ids.values()
+    assert ids[900] not in {t.track_id for t in tracker.tracks}
 
 
 # ---------------------------------------------------------------------- the rig

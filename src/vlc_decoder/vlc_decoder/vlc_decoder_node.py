@@ -381,6 +381,8 @@ class VlcDecoderNode(Node):
             'camera_info_ignored': self.camera_infos.ignored,
             'tracks_active': len(tracker.tracks),
             'lamps_confirmed': len(tracker.confirmations),
+            # frames in which two spots confirmed one UID (neither reported on both)
+            'duplicate_uid_frames': tracker.duplicate_uid_frames,
             'anomalous_uids': ' '.join(f'{u:#06x}' for u in anomalies),
             'decode_ms_median': f'{np.median(self.proc_ms):.2f}' if self.proc_ms else 'nan',
             'decode_ms_p99': (f'{np.percentile(self.proc_ms, 99):.2f}' if self.proc_ms

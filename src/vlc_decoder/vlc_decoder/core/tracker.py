@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from vlc_decoder.core.assembly import CONFIRMED, PacketAssembler
+from vlc_decoder.core.assembly import CONFIRMED, PARTIAL, PacketAssembler
 from vlc_decoder.core.frame_grid import FrameGrid
 from vlc_decoder.core.spots import detect
 
@@ -332,6 +332,8 @@ class LampTracker:
         self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
         self.last_stamp_ns = None
         self.resets = 0              # times the tracks were dropped for a stamp jump
+        # frames in which two tracks confirmed one UID (_one_track_per_uid)
+        self.duplicate_uid_frames = 0
         # frame numbers on the camera's period: each track's packet on its own timeline
         self.frames = FrameGrid(cfg.frame_rate_hz)
         self._grid_warned = False
@@ -396,31 +398,10 @@ class LampTracker:
             LOG.warning('frame_rate_hz %g does not match the image stamps: lamp packets are '
                         'assembled on the stamps as they are', self.cfg.frame_rate_hz)
         observations = pair_spots(left, right, self.max_disparity_px, self.rectify)
-        matches = self._associate(stamp_ns, observations)
-        records = []
-        for obs_index, (spot_l, spot_r) in enumerate(observations):
-            track = matches.get(obs_index)
-            u, v, disparity = self._left_position(spot_l, spot_r, track)
-            if track is None:
-                track = _Track(next(self._ids), PacketAssembler(self.cfg, stamp_ns), u, v,
-                               disparity, stamp_ns)
-                self.tracks.append(track)
-            else:
-                track.update(stamp_ns, u, v)
-                if disparity is not None:
-                    track.disparity = disparity
-            frame_ns, track.timeline = self.frames.time_ns(track.timeline, stamp_ns)
-            track.missed = 0
-            track.seen += 1
-            spot = spot_l if spot_l is not None else spot_r
-            track.history.append((stamp_ns, u, v, spot.height_px))
-            del track.history[:-PATH_MAX_POINTS]
-            rows, level, weight, source = combine_profiles(
-                spot_l, spot_r, self.rectify is not None, self._profile_lag(spot_l, spot_r))
-            was_confirmed = track.assembler.state == CONFIRMED
-            track.assembler.add(frame_ns, rows, level, weight)
-            records.append(self._record(track, spot_l, spot_r, rows, source, stamp_ns,
-                                        was_confirmed))
+        matches, tight = self._associate(stamp_ns, observations)
+        records = [self._observe(stamp_ns, spot_l, spot_r, matches.get(obs_index))
+                   for obs_index, (spot_l, spot_r) in enumerate(observations)]
+        records = self._one_track_per_uid(stamp_ns, observations, records, tight)
         seen = {id(t) for t in matches.values()}
         for track in self.tracks:
             if id(track) not in seen and track.stamp_ns != stamp_ns:
@@ -433,6 +414,74 @@ class LampTracker:
                 self._paths.append((track.stamp_ns, track.path()))
         self.tracks = kept
         self._paths = [p for p in self._paths if stamp_ns - p[0] <= PATH_MEMORY_S * 1e9]
+        return records
+
+    def _observe(self, stamp_ns, spot_l, spot_r, track):
+        """Move ``track`` (None: a new track) to one observation and assemble its
+        stripes; returns the observation's LampRecord.
+        """
+        u, v, disparity = self._left_position(spot_l, spot_r, track)
+        if track is None:
+            track = _Track(next(self._ids), PacketAssembler(self.cfg, stamp_ns), u, v,
+                           disparity, stamp_ns)
+            self.tracks.append(track)
+        else:
+            track.update(stamp_ns, u, v)
+            if disparity is not None:
+                track.disparity = disparity
+        frame_ns, track.timeline = self.frames.time_ns(track.timeline, stamp_ns)
+        track.missed = 0
+        track.seen += 1
+        spot = spot_l if spot_l is not None else spot_r
+        track.history.append((stamp_ns, u, v, spot.height_px))
+        del track.history[:-PATH_MAX_POINTS]
+        rows, level, weight, source = combine_profiles(
+            spot_l, spot_r, self.rectify is not None, self._profile_lag(spot_l, spot_r))
+        was_confirmed = track.assembler.state == CONFIRMED
+        track.assembler.add(frame_ns, rows, level, weight)
+        return self._record(track, spot_l, spot_r, rows, source, stamp_ns, was_confirmed)
+
+    def _one_track_per_uid(self, stamp_ns, observations, records, tight):
+        """One UID, one lamp: a frame's records never confirm one UID on two spots.
+
+        Two tracks confirming one UID in a frame cannot both sit on its lamp (lamps are
+        10 m apart, their UIDs unique on the map). Seen on the realistic rig (2026-12-07,
+        2 of 60 runs, 3 and 7 frames): a confirmed track lost its lamp for a few frames
+        (a new track took the lamp over and confirmed the UID again), and, its gate
+        grown by the gap, then took the next lamp entering the image at the border where
+        its own had entered 0.6 s before; that spot showed only the chips every lamp of
+        the line shares, so nothing in its stripes contradicted the old packet.
+
+        A track that reached its spot of this frame only after a gap or outside the
+        tight gate (``tight``: the observation indices matched tightly) is split off:
+        the spot starts a new track (decoding afresh) and the old track is dropped, its
+        lamp being followed by the other. If two or more tightly followed tracks still
+        confirm the UID (two spots showing one UID: a duplicated lamp, a reflection),
+        none of them is reported confirmed in this frame. Counted in
+        ``duplicate_uid_frames``, warned.
+        """
+        confirmed = {}
+        for index, rec in enumerate(records):
+            if rec.state == CONFIRMED:
+                confirmed.setdefault(rec.uid, []).append(index)
+        duplicates = {uid: idx for uid, idx in confirmed.items() if len(idx) > 1}
+        if not duplicates:
+            return records
+        self.duplicate_uid_frames += 1
+        for uid, idx in duplicates.items():
+            loose = [i for i in idx if i not in tight]
+            for i in loose:
+                split = records[i].track_id
+                self.tracks = [t for t in self.tracks if t.track_id != split]
+                records[i] = self._observe(stamp_ns, *observations[i], None)
+            held = [i for i in idx if i in tight]
+            if len(held) > 1:
+                for i in held:
+                    records[i] = dataclasses.replace(records[i], state=PARTIAL, uid=-1,
+                                                     position_m=None)
+            LOG.warning('UID %#06x confirmed on %d spots in one frame: %d track(s) split off, '
+                        '%d not reported confirmed', uid, len(idx), len(loose),
+                        len(held) if len(held) > 1 else 0)
         return records
 
     def _predict(self, track, stamp_ns):
@@ -463,7 +512,10 @@ class LampTracker:
         return spot_r.u + disparity, spot_r.v, None
 
     def _associate(self, stamp_ns, observations):
-        """Greedy nearest-neighbour association of observations to tracks."""
+        """Greedy nearest-neighbour association of observations to tracks: ({observation
+        index: track}, the indices matched tightly: the track seen in the last frame and
+        the spot close to its prediction).
+        """
         pairs = []
         for t_index, track in enumerate(self.tracks):
             pred, step = self._predict(track, stamp_ns)
@@ -489,17 +541,19 @@ class LampTracker:
                                                       self.rectify is not None,
                                                       self._lag_estimate())
             if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight, tight):
-                checked.append((dist, t_index, o_index))
+                checked.append((dist, t_index, o_index, tight))
         pairs = checked
         pairs.sort()
-        used_t, used_o, matches = set(), set(), {}
-        for _, t_index, o_index in pairs:
+        used_t, used_o, matches, tight_obs = set(), set(), {}, set()
+        for _, t_index, o_index, tight in pairs:
             if t_index in used_t or o_index in used_o:
                 continue
             used_t.add(t_index)
             used_o.add(o_index)
             matches[o_index] = self.tracks[t_index]
-        return matches
+            if tight:
+                tight_obs.add(o_index)
+        return matches, tight_obs
 
     def _record(self, track, spot_l, spot_r, rows, source, stamp_ns, was_confirmed):
         asm = track.assembler
