@@ -30,11 +30,13 @@ rm -f "$out/runs.jsonl" "$out/latency_runs.jsonl"
 # this evaluation's entries (a few GB at most).
 export VLC_RIG_CACHE_DIR="$(realpath -m "$out")/rig_cache"
 rm -rf "$VLC_RIG_CACHE_DIR"
-# Each step's wall time, printed at the end and kept in $out/evaluate_times.txt (#21's
-# target is the whole evaluation's wall time on two cores).
+# Each step's wall time, printed at the end and kept in $out/evaluate_times.txt and
+# docs/evaluation/evaluate_times.txt (#21's target is the whole evaluation's wall time on
+# two cores).
 mkdir -p "$out"
 times="$out/evaluate_times.txt"
-echo "make evaluate, $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc) cores" > "$times"
+# (nproc alone reports OMP_NUM_THREADS, which scripts/env.sh sets to 1)
+echo "make evaluate, $(date -u '+%Y-%m-%d %H:%M UTC'), $(nproc --all) cores" > "$times"
 step() {
     local t0=$SECONDS
     ros2run vlc_evaluation run_evaluation "$@"
@@ -61,3 +63,5 @@ step --protocol none --departures 3 --first-seed 11 \
     --out "$out/departures" --departures-docs docs/arch/evaluation.md
 echo "total: $SECONDS s ($((SECONDS / 60)) min)" >> "$times"
 cat "$times"
+# beside the generated report, so the README can point at the last run's times
+cp "$times" docs/evaluation/evaluate_times.txt
