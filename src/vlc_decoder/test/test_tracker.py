@@ -1,5 +1,6 @@
 """Frame pipeline: stereo pairing, tracking, right-image fallback; fed by the rig too."""
 import dataclasses
+import logging
 import pathlib
 
 import numpy as np
@@ -163,13 +164,16 @@ def _two_spots_one_uid(frames=60, seed=3):
     return tracker, out, uid, lamps
 
 
-def test_one_uid_is_never_confirmed_on_two_spots_of_a_frame():
+def test_one_uid_is_never_confirmed_on_two_spots_of_a_frame(caplog):
     """Both spots decode the UID on tracks followed frame by frame: neither is reported
     confirmed while the other is (without the rule both were), and the frames are counted.
     """
-    tracker, out, uid, _ = _two_spots_one_uid()
+    with caplog.at_level(logging.WARNING, logger='vlc_decoder.core.tracker'):
+        tracker, out, uid, _ = _two_spots_one_uid()
     assert all(sum(r.state == CONFIRMED for r in records) <= 1 for records in out)
-    assert tracker.duplicate_uid_frames > 0
+    assert tracker.duplicate_uid_frames > 1
+    # warned once, though every later frame has the two spots
+    assert sum('confirmed on 2 spots' in m for m in caplog.messages) == 1
     # the tracks themselves decoded it (so the rule, not the decoding, withheld it)
     assert [t.assembler.uid for t in tracker.tracks] == [uid, uid]
 

@@ -332,8 +332,10 @@ class LampTracker:
         self.confirmations = []      # (track_id, uid, stamp_ns) at first confirmation
         self.last_stamp_ns = None
         self.resets = 0              # times the tracks were dropped for a stamp jump
-        # frames in which two tracks confirmed one UID (_one_track_per_uid)
+        # frames in which two tracks confirmed one UID (_one_track_per_uid); the UIDs
+        # warned about (once each)
         self.duplicate_uid_frames = 0
+        self._duplicate_uids_warned = set()
         # frame numbers on the camera's period: each track's packet on its own timeline
         self.frames = FrameGrid(cfg.frame_rate_hz)
         self._grid_warned = False
@@ -458,7 +460,7 @@ class LampTracker:
         lamp being followed by the other. If two or more tightly followed tracks still
         confirm the UID (two spots showing one UID: a duplicated lamp, a reflection),
         none of them is reported confirmed in this frame. Counted in
-        ``duplicate_uid_frames``, warned.
+        ``duplicate_uid_frames``, warned once per UID.
         """
         confirmed = {}
         for index, rec in enumerate(records):
@@ -479,9 +481,12 @@ class LampTracker:
                 for i in held:
                     records[i] = dataclasses.replace(records[i], state=PARTIAL, uid=-1,
                                                      position_m=None)
-            LOG.warning('UID %#06x confirmed on %d spots in one frame: %d track(s) split off, '
-                        '%d not reported confirmed', uid, len(idx), len(loose),
-                        len(held) if len(held) > 1 else 0)
+            if uid not in self._duplicate_uids_warned:
+                self._duplicate_uids_warned.add(uid)
+                LOG.warning('UID %#06x confirmed on %d spots in one frame: %d track(s) split '
+                            'off, %d not reported confirmed (warned once per UID; counted in '
+                            'duplicate_uid_frames)', uid, len(idx), len(loose),
+                            len(held) if len(held) > 1 else 0)
         return records
 
     def _predict(self, track, stamp_ns):
