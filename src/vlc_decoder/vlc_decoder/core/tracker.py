@@ -401,9 +401,13 @@ class LampTracker:
                         'assembled on the stamps as they are', self.cfg.frame_rate_hz)
         observations = pair_spots(left, right, self.max_disparity_px, self.rectify)
         matches, tight = self._associate(stamp_ns, observations)
-        records = [self._observe(stamp_ns, spot_l, spot_r, matches.get(obs_index))
-                   for obs_index, (spot_l, spot_r) in enumerate(observations)]
-        records = self._one_track_per_uid(stamp_ns, observations, records, tight)
+        # each observation's stripes, read once (a raw pair's lag is recorded once)
+        profiles = [combine_profiles(spot_l, spot_r, self.rectify is not None,
+                                     self._profile_lag(spot_l, spot_r))
+                    for spot_l, spot_r in observations]
+        records = [self._observe(stamp_ns, *observations[i], profiles[i], matches.get(i))
+                   for i in range(len(observations))]
+        records = self._one_track_per_uid(stamp_ns, observations, profiles, records, tight)
         seen = {id(t) for t in matches.values()}
         for track in self.tracks:
             if id(track) not in seen and track.stamp_ns != stamp_ns:
@@ -418,9 +422,10 @@ class LampTracker:
         self._paths = [p for p in self._paths if stamp_ns - p[0] <= PATH_MEMORY_S * 1e9]
         return records
 
-    def _observe(self, stamp_ns, spot_l, spot_r, track):
+    def _observe(self, stamp_ns, spot_l, spot_r, profile, track):
         """Move ``track`` (None: a new track) to one observation and assemble its
-        stripes; returns the observation's LampRecord.
+        stripes (``profile``: :func:`combine_profiles` of the observation); returns the
+        observation's LampRecord.
         """
         u, v, disparity = self._left_position(spot_l, spot_r, track)
         if track is None:
@@ -437,13 +442,12 @@ class LampTracker:
         spot = spot_l if spot_l is not None else spot_r
         track.history.append((stamp_ns, u, v, spot.height_px))
         del track.history[:-PATH_MAX_POINTS]
-        rows, level, weight, source = combine_profiles(
-            spot_l, spot_r, self.rectify is not None, self._profile_lag(spot_l, spot_r))
+        rows, level, weight, source = profile
         was_confirmed = track.assembler.state == CONFIRMED
         track.assembler.add(frame_ns, rows, level, weight)
         return self._record(track, spot_l, spot_r, rows, source, stamp_ns, was_confirmed)
 
-    def _one_track_per_uid(self, stamp_ns, observations, records, tight):
+    def _one_track_per_uid(self, stamp_ns, observations, profiles, records, tight):
         """One UID, one lamp: a frame's records never confirm one UID on two spots.
 
         Two tracks confirming one UID in a frame cannot both sit on its lamp (lamps are
@@ -475,7 +479,7 @@ class LampTracker:
             for i in loose:
                 split = records[i].track_id
                 self.tracks = [t for t in self.tracks if t.track_id != split]
-                records[i] = self._observe(stamp_ns, *observations[i], None)
+                records[i] = self._observe(stamp_ns, *observations[i], profiles[i], None)
             held = [i for i in idx if i in tight]
             if len(held) > 1:
                 for i in held:
