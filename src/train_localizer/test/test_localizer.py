@@ -458,13 +458,17 @@ def test_a_departure_is_not_held_at_standstill(gate_chi2, holds):
 
 def test_the_published_cross_track_sigma_is_the_pose_sigma_or_the_track_constraints():
     """base_link's offset from its place on the track is stated as pose_sigma_yz_m (1 cm
-    by default: the car body over a poor track moves 7-11 mm), never below the fix's own
-    track constraint; along the track the filter's variance is untouched.
+    by default), never below the fix's own track constraint (here without the motion
+    estimate, the next test's); along the track the filter's variance is untouched.
     """
     traj, events = scenario(40.0, 3.0, seed=2)
-    a = feed(make(), events)[0]
-    b = feed(make(pose_sigma_yz_m=(0.002, 0.03)), events)[0]
-    assert len(a) == len(b) > 10
+    a = feed(make(motion_sigma_factor=0.0), events)[0]
+    b = feed(make(motion_sigma_factor=0.0, pose_sigma_yz_m=(0.002, 0.03)), events)[0]
+    c = feed(make(pose_sigma_yz_m=(0.002, 0.03)), events)[0]
+    assert len(a) == len(b) == len(c) > 10
+    for pb, pc in zip(b, c):
+        # with the motion estimate (the default) never below those floors
+        assert np.all(np.diag(pc.position_cov_m2) >= np.diag(pb.position_cov_m2))
     for pa, pb in zip(a, b):
         assert np.sqrt(pa.position_cov_m2[1, 1]) == pytest.approx(0.01)
         assert np.sqrt(pa.position_cov_m2[2, 2]) == pytest.approx(0.01)
@@ -473,3 +477,31 @@ def test_the_published_cross_track_sigma_is_the_pose_sigma_or_the_track_constrai
         assert pa.position_cov_m2[0, 0] == pb.position_cov_m2[0, 0]
     with pytest.raises(ValueError, match='pose_sigma_yz_m'):
         LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG), pose_sigma_yz_m=(0.01, -1.0))
+
+
+def test_the_published_vertical_sigma_covers_the_car_body_on_a_poor_track_at_speed():
+    """The car body on three times the German low-disturbance track at 100 km/h bounces
+    up to ~4 cm about the track: a fixed 1 cm vertical 1σ leaves poses outside 3σ, the
+    1σ grown from the IMU's motion estimate (motion_sigma_factor) covers them; along the
+    track nothing changes.
+    """
+    from vlc_stereo_camera.core.car_body import CarBody, CarBodyConfig
+    v = 100.0 / 3.6
+    traj = Trajectory(MotionProfile('constant', start_chainage_m=0.0, speed_mps=v),
+                      CarBody(CarBodyConfig(spectrum='german_low', scale=3.0, seed=5)))
+    sim = SensorSimulator(traj, RIG, LAMPS, SensorErrors(), np.random.default_rng(5))
+    events = list(event_stream(sim, 0.0, 8.0))
+    fixed, _, _ = feed(make(motion_sigma_factor=0.0), events)
+    grown, _, _ = feed(make(), events)
+    assert len(fixed) == len(grown) > 100
+    err, sigma_fixed, t = errors_of(fixed, traj)
+    _, sigma_grown, _ = errors_of(grown, traj)
+    settled = t > t[0] + 3.0                    # the motion estimate's window filled
+    assert np.max(np.abs(err[settled, 2])) > 0.03
+    assert np.mean(np.abs(err[settled, 2]) <= 3.0 * sigma_fixed[settled, 2]) < 0.97
+    assert np.all(np.abs(err[settled]) <= 3.0 * sigma_grown[settled])
+    assert np.all(sigma_grown[:, 2] >= 0.01) and np.max(sigma_grown[:, 2]) < 0.06
+    assert [p.position_m.tolist() for p in fixed] == [p.position_m.tolist() for p in grown]
+    assert [p.position_cov_m2[0, 0] for p in fixed] == [p.position_cov_m2[0, 0] for p in grown]
+    with pytest.raises(ValueError, match='motion_sigma_factor'):
+        LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG), motion_sigma_factor=-1.0)

@@ -111,6 +111,13 @@ PARAMETERS = (
                                    'least track_sigma_y_m).', 1e-6, 1.0)),
     ('pose_sigma_z_m', 0.01, _desc('1-sigma of the published pose vertically, m (at least '
                                    'track_sigma_z_m).', 1e-6, 1.0)),
+    ('motion_sigma_factor', 2.0, _desc('The published lateral and vertical 1-sigma is at '
+                                       'least this factor times the car body motion about '
+                                       'the track that imu/data shows; 0 = pose_sigma_* '
+                                       'only.', 0.0, 100.0)),
+    ('motion_highpass_hz', 0.5, _desc('Corner of that motion estimate (slower motion is '
+                                      'not seen), Hz.', 0.01, 10.0)),
+    ('motion_window_s', 2.0, _desc('Time constant of its running variance, s.', 0.05, 60.0)),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),
     ('imu_poll_period_s', 0.01, _desc('imu/data and camera_info are taken in batches this '
                                       'often (steady clock) and before every frame, off '
@@ -591,6 +598,8 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             use_exposure_stamping=p['use_exposure_stamping'], use_kalman=p['use_kalman'],
             publish_rate_hz=p['publish_rate_hz'], publish_on_fix=p['publish_on_fix'],
             pose_sigma_yz_m=(p['pose_sigma_y_m'], p['pose_sigma_z_m']),
+            motion_sigma_factor=p['motion_sigma_factor'],
+            motion_highpass_hz=p['motion_highpass_hz'], motion_window_s=p['motion_window_s'],
             history_s=p['history_s'], imu_timeout_s=p['imu_timeout_s'],
             imu_max_gap_s=p['imu_max_gap_s'], backward_reset_s=p['backward_reset_s'],
             imu_backward_s=p['imu_backward_s'], blind_gap_s=p['blind_gap_s'],
@@ -844,6 +853,9 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             'frames_without_uids': j.spots_without_lamps,
             'lamp_records_unmatched': j.unmatched_lamp_records,
             'intrinsics': self._intrinsics.source,
+            # the car body's motion about the track that the lateral/vertical 1σ covers
+            'cross_track_motion_mm': '{:.1f} / {:.1f}'.format(
+                *(1e3 * v for v in self.localizer.cross_track_motion_m)),
         }
         survey = self.localizer.survey
         if survey is not None:

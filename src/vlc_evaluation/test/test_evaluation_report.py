@@ -214,6 +214,25 @@ def test_cpu_and_peak_rss_files_are_parsed_and_summed_per_run(tmp_path):
     # runs without the memory figures (exec-spawned nodes): no RSS sentence
     text, figures = report.timing_summary(runs[3:])
     assert 'RSS' not in text and 'rss_mib' not in figures
+    # no simulated length in the runs: no CPU-per-simulated-second sentence
+    assert 'cpu_per_simulated_s' not in figures and 'per simulated second' not in text
+
+
+def test_cpu_per_simulated_second_is_the_wall_time_floor():
+    runs = [{'scenario': {'duration_s': 2.0}, 'timing': {'cpu_s': {'a': 3.0, 'b': 1.0}}},
+            {'scenario': {'duration_s': 10.0}, 'timing': {'cpu_s': {'a': 20.0}}},
+            {'scenario': {'duration_s': 5.0}, 'timing': {}},          # no CPU: left out
+            {'timing': {'cpu_s': {'a': 9.0}}}]                        # no length: left out
+    cost = report.cpu_per_simulated_second(runs, cores=2)
+    assert cost == {'runs': 2, 'cpu_s': 24.0, 'simulated_s': 12.0, 'ratio': 2.0, 'cores': 2}
+    assert report.cpu_per_simulated_second(runs[2:]) is None
+    phases = {'started': 0.3, 'ready': 2.7, 'sim_started': 2.8, 'camera_done': 6.0,
+              'drained': 6.4, 'stopped': 6.6}
+    for run in runs:
+        run['timing'].update(phases)
+    text, figures = report.timing_summary(runs)
+    assert figures['cpu_per_simulated_s']['ratio'] == 2.0
+    assert '24 CPU-s for 12 s simulated, 2.00 CPU-s per simulated second' in text
 
 
 def test_latency_table_processing_median_p99_max():

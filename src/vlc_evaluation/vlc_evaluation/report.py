@@ -5,6 +5,7 @@ typed in from a measurement: every number of ours comes from the results passed 
 """
 import json
 import math
+import os
 import pathlib
 import time
 
@@ -437,6 +438,14 @@ def timing_summary(results):
         text += (' Ready phase, the last awaited subscriptions (median s since the start): '
                  + ', '.join(f'{k} {v:.2f}' for k, v in list(ready.items())[-3:]) + '.')
     summary = {'phases_s': phases, 'cpu_s': cpu, 'runs': len(timings)}
+    cost = cpu_per_simulated_second(results)
+    if cost:
+        summary['cpu_per_simulated_s'] = cost
+        text += (f" CPU over the {cost['runs']} kept runs: {cost['cpu_s']:.0f} CPU-s for "
+                 f"{cost['simulated_s']:.0f} s simulated, {cost['ratio']:.2f} CPU-s per "
+                 f"simulated second; on {cost['cores']} cores that alone is at least "
+                 f"{cost['cpu_s'] / cost['cores']:.0f} s of wall time at any pace (reruns "
+                 'not counted).')
     if ready:
         summary['ready_topics_s'] = ready
     if rss:
@@ -444,6 +453,29 @@ def timing_summary(results):
                        graph_rss_mib={'median': float(np.median(graph_rss)),
                                       'max': float(max(graph_rss))})
     return text, summary
+
+
+def cpu_per_simulated_second(results, cores=None):
+    """The graph's CPU cost per simulated second over the kept runs of ``results`` that
+    carry both their nodes' CPU (``timing.cpu_s``) and their simulated length
+    (``scenario.duration_s``): ``{'runs', 'cpu_s', 'simulated_s', 'ratio', 'cores'}``,
+    or None. ``cpu_s / cores`` is a lower bound on the wall time of those runs on this
+    machine whatever the pace or the number of lanes: #21's arithmetic.
+    """
+    cpu = simulated = 0.0
+    runs = 0
+    for r in results:
+        seconds = r.get('timing', {}).get('cpu_s')
+        duration = r.get('scenario', {}).get('duration_s')
+        if seconds and duration:
+            cpu += sum(seconds.values())
+            simulated += float(duration)
+            runs += 1
+    if not runs or simulated <= 0.0:
+        return None
+    cores = int(cores or os.cpu_count() or 1)
+    return {'runs': runs, 'cpu_s': cpu, 'simulated_s': simulated, 'ratio': cpu / simulated,
+            'cores': cores}
 
 
 def plot_heading(results, path):

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from imu_compensator.core.attitude_buffer import AttitudeBuffer
+from train_localizer.core.cross_track import CrossTrackMotion, lateral_vertical
 from train_localizer.core.disparity_map import DisparityMap
 from train_localizer.core.fix import (
     FixConfig,
@@ -108,6 +109,15 @@ class LocalizerConfig:
         and the fix's ``track_sigma_yz_m``): base_link's offset from its nominal place,
         which the fix's track constraint takes as a few mm but the car body on its
         suspension over a poor track exceeds (7–11 mm on the ``harsh`` profile).
+    motion_sigma_factor : float
+        The published lateral and vertical 1σ is at least this factor times the car
+        body's motion about the track that the IMU shows
+        (:class:`~train_localizer.core.cross_track.CrossTrackMotion`; 40 mm at 100 km/h
+        on the ``harsh`` profile); 0 = the configured 1σ only.
+    motion_highpass_hz : float
+        Corner of that estimate (the motion below it is not seen), Hz.
+    motion_window_s : float
+        Time constant of its running variance, s.
     history_s : float
         How far back a fix may be applied, s.
     imu_timeout_s : float
@@ -181,6 +191,9 @@ class LocalizerConfig:
     publish_rate_hz: float = 50.0
     publish_on_fix: bool = True
     pose_sigma_yz_m: tuple = (0.01, 0.01)
+    motion_sigma_factor: float = 2.0
+    motion_highpass_hz: float = 0.5
+    motion_window_s: float = 2.0
     history_s: float = 1.0
     imu_timeout_s: float = 0.2
     imu_max_gap_s: float = 0.05
@@ -225,12 +238,16 @@ class LocalizerConfig:
                      'attitude_plausible_rad', 'attitude_distrust_s',
                      'backward_reset_s', 'imu_backward_s', 'blind_gap_s', 'clock_tolerance_s',
                      'initial_chainage_sigma_m', 'max_speed_mps',
-                     'init_lookback_s', 'systematic_weight_inflation'):
+                     'init_lookback_s', 'systematic_weight_inflation',
+                     'motion_highpass_hz', 'motion_window_s'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
         self.imu_lever_arm_m = tuple(float(v) for v in self.imu_lever_arm_m)
         self.pose_sigma_yz_m = tuple(float(v) for v in self.pose_sigma_yz_m)
+        if not (math.isfinite(self.motion_sigma_factor) and self.motion_sigma_factor >= 0.0):
+            raise ValueError(f'motion_sigma_factor must be finite and >= 0, '
+                             f'got {self.motion_sigma_factor}')
         if len(self.pose_sigma_yz_m) != 2 or not all(
                 math.isfinite(v) and v > 0.0 for v in self.pose_sigma_yz_m):
             raise ValueError(f'pose_sigma_yz_m must be 2 finite values > 0, '
@@ -296,6 +313,8 @@ class Localizer:
                                    max_gap_s=max(cfg.imu_max_gap_s, 1e-3),
                                    max_extrapolation_s=cfg.imu_max_gap_s)
         self._standstill = StandstillDetector(cfg.standstill)
+        self._motion = CrossTrackMotion(cfg.motion_highpass_hz, cfg.motion_window_s,
+                                        max(cfg.imu_max_gap_s, 1e-3))
         self._last_zupt_ns = None
         self._time.reset_streams()
         self._newest_imu_ns = None
@@ -559,6 +578,10 @@ class Localizer:
         track = cfg.fix.track
         if cfg.use_imu_attitude and sample.quat_xyzw is not None:
             x, y, z, w = sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
+            if cfg.motion_sigma_factor > 0.0:
+                self._motion.add(sample.stamp_ns * 1e-9,
+                                 *lateral_vertical((x, y, z, w), (float(f[0]), float(f[1]),
+                                                                  float(f[2]))))
             # First row of the rotation matrix: only the along-track component is needed.
             row_x = ((1.0 - 2.0 * (y * y + z * z)), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w))
             if track.straight_x:
@@ -1133,10 +1156,19 @@ class Localizer:
         gate.last_pub_ns = t_m
 
     # ----------------------------------------------------------------- output
+    @property
+    def cross_track_motion_m(self):
+        """(lateral, vertical) RMS motion of the car body about the track that the IMU
+        shows (:class:`~train_localizer.core.cross_track.CrossTrackMotion`), m.
+        """
+        return self._motion.sigma_m()
+
     def _position_cov(self, chainage_m, chainage_var):
         """Map covariance (3, 3): along the track, across it and vertical."""
-        sy, sz = (max(float(a), float(b)) for a, b in zip(self.config.fix.track_sigma_yz_m,
-                                                          self.config.pose_sigma_yz_m))
+        k = self.config.motion_sigma_factor
+        sy, sz = (max(float(a), float(b), k * m)
+                  for a, b, m in zip(self.config.fix.track_sigma_yz_m,
+                                     self.config.pose_sigma_yz_m, self._motion.sigma_m()))
         return self.config.fix.track.covariance(chainage_m, chainage_var, sy * sy, sz * sz)
 
     def _orientation(self, t):
