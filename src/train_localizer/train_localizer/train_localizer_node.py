@@ -111,11 +111,11 @@ PARAMETERS = (
                                    'least track_sigma_y_m).', 1e-6, 1.0)),
     ('pose_sigma_z_m', 0.01, _desc('1-sigma of the published pose vertically, m (at least '
                                    'track_sigma_z_m).', 1e-6, 1.0)),
-    ('motion_sigma_factor', 2.0, _desc('The published lateral and vertical 1-sigma is at '
+    ('motion_sigma_factor', 3.0, _desc('The published lateral and vertical 1-sigma is at '
                                        'least this factor times the car body motion about '
                                        'the track that imu/data shows; 0 = pose_sigma_* '
                                        'only.', 0.0, 100.0)),
-    ('motion_highpass_hz', 0.5, _desc('Corner of that motion estimate (slower motion is '
+    ('motion_highpass_hz', 0.4, _desc('Corner of that motion estimate (slower motion is '
                                       'not seen), Hz.', 0.01, 10.0)),
     ('motion_window_s', 2.0, _desc('Time constant of its running variance, s.', 0.05, 60.0)),
     ('diagnostics_period_s', 1.0, _desc('Diagnostics period (steady clock), s.', 0.1, 60.0)),

@@ -191,8 +191,8 @@ class LocalizerConfig:
     publish_rate_hz: float = 50.0
     publish_on_fix: bool = True
     pose_sigma_yz_m: tuple = (0.01, 0.01)
-    motion_sigma_factor: float = 2.0
-    motion_highpass_hz: float = 0.5
+    motion_sigma_factor: float = 3.0
+    motion_highpass_hz: float = 0.4
     motion_window_s: float = 2.0
     history_s: float = 1.0
     imu_timeout_s: float = 0.2
@@ -576,12 +576,16 @@ class Localizer:
                  - np.array(_cross3(w_l, _cross3(w_l, r))))
         self._prev_gyro = sample.gyro_rps
         track = cfg.fix.track
-        if cfg.use_imu_attitude and sample.quat_xyzw is not None:
+        attitude = cfg.use_imu_attitude and sample.quat_xyzw is not None
+        if cfg.motion_sigma_factor > 0.0:
+            f3 = (float(f[0]), float(f[1]), float(f[2]))
+            # across the heading in map (the body's roll is not motion); body axes without
+            # an attitude
+            self._motion.add(sample.stamp_ns * 1e-9, *(lateral_vertical(
+                sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw), f3) if attitude
+                else f3[1:]))
+        if attitude:
             x, y, z, w = sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
-            if cfg.motion_sigma_factor > 0.0:
-                self._motion.add(sample.stamp_ns * 1e-9,
-                                 *lateral_vertical((x, y, z, w), (float(f[0]), float(f[1]),
-                                                                  float(f[2]))))
             # First row of the rotation matrix: only the along-track component is needed.
             row_x = ((1.0 - 2.0 * (y * y + z * z)), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w))
             if track.straight_x:
