@@ -61,7 +61,9 @@ class CrossTrackMotion:
         self._axes = [[0.0] * 6 for _ in range(2)]
 
     def add(self, t_s, f_lateral, f_vertical):
-        """One sample: specific force along the body's y and z axes, m/s²."""
+        """One sample: lateral and vertical specific force (:func:`lateral_vertical`, or
+        the body's y and z axes without an attitude), m/s².
+        """
         dt = None if self._t is None else t_s - self._t
         if dt is not None and dt <= 0.0:
             return

@@ -557,7 +557,9 @@ class Localizer:
 
         The specific force rotated into ``map`` plus gravity, x component (straight
         track). Gravity has no x component, so ``a_x = (R·f)_x``: the attitude matters
-        because a pitch of θ leaks g·θ of gravity into the body x axis.
+        because a pitch of θ leaks g·θ of gravity into the body x axis. The same specific
+        force feeds the car body's motion estimate across and above the track
+        (``self._motion``, :mod:`~train_localizer.core.cross_track`).
         """
         cfg = self.config
         f = sample.accel_mps2
@@ -576,16 +578,16 @@ class Localizer:
                  - np.array(_cross3(w_l, _cross3(w_l, r))))
         self._prev_gyro = sample.gyro_rps
         track = cfg.fix.track
-        attitude = cfg.use_imu_attitude and sample.quat_xyzw is not None
+        q = (sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
+             if cfg.use_imu_attitude and sample.quat_xyzw is not None else None)
         if cfg.motion_sigma_factor > 0.0:
             f3 = (float(f[0]), float(f[1]), float(f[2]))
             # across the heading in map (the body's roll is not motion); body axes without
             # an attitude
-            self._motion.add(sample.stamp_ns * 1e-9, *(lateral_vertical(
-                sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw), f3) if attitude
-                else f3[1:]))
-        if attitude:
-            x, y, z, w = sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
+            self._motion.add(sample.stamp_ns * 1e-9,
+                             *(lateral_vertical(q.tolist(), f3) if q is not None else f3[1:]))
+        if q is not None:
+            x, y, z, w = q
             # First row of the rotation matrix: only the along-track component is needed.
             row_x = ((1.0 - 2.0 * (y * y + z * z)), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w))
             if track.straight_x:
