@@ -14,7 +14,8 @@ def test_a_drawn_profile_records_profile_seed_and_every_drawn_value(tmp_path):
     params = write_installation(Scenario(name='run', seed=9, rig_profile='harsh'), tmp_path)
     folder = tmp_path / 'run.installation'
     assert params == {'vehicle_path': str(folder / 'belief' / 'vehicle.yaml'),
-                      'lamp_map_path': str(folder / 'belief' / 'lamp_map.yaml')}
+                      'lamp_map_path': str(folder / 'belief' / 'lamp_map.yaml'),
+                      'error_model_path': str(folder / 'belief' / 'train_localizer_node.yaml')}
     truth = yaml.safe_load((folder / 'truth' / 'truth.yaml').read_text())
     assert truth['profile'] == 'harsh' and truth['seed'] == 9
     assert {'optics', 'vehicle_truth', 'vehicle_belief', 'lamps', 'calibration_error',
@@ -74,3 +75,43 @@ def test_receivers_get_the_survey_instead_of_the_rigs_map_but_keep_a_deliberate_
         tmp_path / 'forged.yaml')
     assert receiver_params(belief, scenario, 'spot_locator_node') == belief
     assert receiver_params({}, scenario, 'spot_locator_node') == {}
+
+
+def test_a_poorer_installation_states_its_error_model_to_the_localizer(tmp_path):
+    """Harsh states a calibration of 0.45 px RMS and a mount measured to 0.15 deg, three
+    times the reference the localizer's defaults state: its calibration and mount 1-sigma
+    are written three times larger into belief/train_localizer_node.yaml, which only the
+    localizer gets, after its own file (a scenario's -p parameters still win). realistic
+    and its error-budget rows state nothing: the defaults, exactly.
+    """
+    from vlc_evaluation.runner import receiver_params, receiver_params_files, stated_error_model
+    defaults = {'stereo_scale_sigma': 0.001, 'focal_length_sigma': 0.001,
+                'principal_point_sigma_px': 0.5, 'calibration_sigma_px': 0.5,
+                'calibration_disparity_sigma_px': 0.8, 'mount_angle_sigma_deg': [0.05, 0.1, 0.1]}
+    harsh = stated_error_model('harsh', defaults)
+    assert harsh == {'stereo_scale_sigma': 0.003, 'focal_length_sigma': 0.003,
+                     'principal_point_sigma_px': 1.5, 'calibration_sigma_px': 1.5,
+                     'calibration_disparity_sigma_px': 2.4,
+                     'mount_angle_sigma_deg': [0.15, 0.3, 0.3]}
+    assert stated_error_model('harsh') == harsh          # the installed parameter file's
+    for name in ('ideal', 'realistic', 'realistic/none', 'realistic/only-calibration',
+                 'realistic/only-camera_mount'):
+        assert stated_error_model(name) == {}, name
+    assert write_installation(Scenario(name='r', seed=3, rig_profile='realistic'),
+                              tmp_path).keys() == {'vehicle_path', 'lamp_map_path'}
+    scenario = Scenario(name='h', seed=3, rig_profile='harsh', node_params={
+        'train_localizer_node': {'calibration_sigma_px': 9.0}})
+    belief = write_installation(scenario, tmp_path)
+    written = yaml.safe_load(open(belief['error_model_path']))['/**']['ros__parameters']
+    assert written == harsh
+
+    class Graph:
+        def config_file(self, package, name):
+            return f'{package}/{name}'
+    files = receiver_params_files(belief, Graph(), 'train_localizer', 'train_localizer_node')
+    assert files == ['train_localizer/train_localizer_node.yaml', belief['error_model_path']]
+    assert receiver_params_files(belief, Graph(), 'spot_locator', 'spot_locator_node') == [
+        'spot_locator/spot_locator_node.yaml']
+    for exe in ('train_localizer_node', 'spot_locator_node'):
+        assert 'error_model_path' not in receiver_params(belief, scenario, exe)
+    assert receiver_params(belief, scenario, 'train_localizer_node')['calibration_sigma_px'] == 9.0

@@ -155,14 +155,18 @@ class ReplayResult:
 
 def replay_with_belief(bag, overrides=None):
     """:func:`replay` of a drawn-profile bag with the belief files written beside it
-    (``<bag>.installation/belief``: calibration, vehicle, surveyed map) and the node's
-    parameter defaults, ``overrides`` on top.
+    (``<bag>.installation/belief``: calibration, vehicle, surveyed map, and the stated error
+    model where there is one) and the node's parameter defaults, ``overrides`` on top.
     """
     bag = pathlib.Path(bag)
     belief = bag.parent / (bag.name + '.installation') / 'belief'
+    stated = {}
+    error_model = belief / 'train_localizer_node.yaml'       # runner.write_error_model
+    if error_model.exists():
+        stated = yaml.safe_load(error_model.read_text(encoding='utf-8'))['/**']['ros__parameters']
     params = load_params(None, dict({'lamp_map_path': str(belief / 'lamp_map.yaml'),
                                      'vehicle_path': str(belief / 'vehicle.yaml')},
-                                    **(overrides or {})))
+                                    **dict(stated, **(overrides or {}))))
     camera_info = camera_info_messages([belief / 'left.yaml', belief / 'right.yaml'])
     return replay(str(bag), params, camera_info=camera_info)
 

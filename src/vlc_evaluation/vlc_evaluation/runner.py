@@ -189,7 +189,9 @@ def write_installation(scenario, out_dir):
     and ``seed`` on the shipped vehicle and lamp map) and writes it beside the bag,
     ``<out_dir>/<name>.installation/{belief,truth}/``: ``truth/truth.yaml`` records the
     profile, the seed and every drawn value for the evaluation. Returns
-    ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``.
+    ``{'vehicle_path': belief/vehicle.yaml, 'lamp_map_path': belief/lamp_map.yaml}``, plus
+    ``error_model_path`` (``belief/train_localizer_node.yaml``, :func:`write_error_model`)
+    for an installation poorer than the localizer's defaults state.
     With ``scenario.calibration`` ``checkerboard`` the belief calibration is replaced by
     an actual checkerboard calibration of the true lenses (``calibrate_installation``);
     with ``uncorrected`` its distortion and rectification are dropped (D = 0, R = I,
@@ -216,8 +218,80 @@ def write_installation(scenario, out_dir):
     elif scenario.calibration != 'drawn':
         raise ValueError(f'scenario {scenario.name}: calibration {scenario.calibration!r} is '
                          'not drawn, checkerboard or uncorrected')
-    return {'vehicle_path': paths['belief/vehicle.yaml'],
-            'lamp_map_path': paths['belief/lamp_map.yaml']}
+    out = {'vehicle_path': paths['belief/vehicle.yaml'],
+           'lamp_map_path': paths['belief/lamp_map.yaml']}
+    error_model = write_error_model(scenario.rig_profile, folder / 'belief')
+    if error_model:
+        out[ERROR_MODEL_KEY] = error_model
+    return out
+
+
+def write_error_model(profile, belief_dir):
+    """Write ``belief_dir/train_localizer_node.yaml``, the localizer's parameters file of
+    :func:`stated_error_model` (what the integrator states with the calibration and the
+    mount), when there is anything to state; returns its path or None.
+    """
+    model = stated_error_model(profile)
+    if not model:
+        return None
+    path = pathlib.Path(belief_dir) / f'{LOCALIZER_EXE}.yaml'
+    with open(path, 'w', encoding='utf-8') as stream:
+        stream.write('# The calibration and mount 1-sigma this installation states (its '
+                     'calibration RMS and\n# mount measurement against the reference of '
+                     'the node defaults): a params file\n# for train_localizer_node after '
+                     'its own.\n')
+        yaml.safe_dump({'/**': {'ros__parameters': model}}, stream, sort_keys=False,
+                       default_flow_style=None)
+    return str(path)
+
+
+#: The localizer's calibration error model (train_localizer_node.yaml) states a stereo
+#: calibration of this reprojection RMS and a camera mount measured to this 1σ: the
+#: ``realistic`` profile's. A poorer installation must be stated as such.
+REFERENCE_CALIBRATION_RMS_PX = 0.15
+REFERENCE_MOUNT_SIGMA_DEG = 0.05
+#: The localizer parameters that scale with the calibration's reprojection RMS (the
+#: parameter covariance of a least-squares calibration scales with its residual's σ²),
+#: and the one that scales with the mount's measurement 1σ.
+CALIBRATION_SIGMA_PARAMETERS = ('stereo_scale_sigma', 'focal_length_sigma',
+                                'principal_point_sigma_px', 'calibration_sigma_px',
+                                'calibration_disparity_sigma_px')
+MOUNT_SIGMA_PARAMETER = 'mount_angle_sigma_deg'
+
+
+def stated_error_model(profile, defaults=None):
+    """The localizer parameters an integrator writes for an installation of ``profile``
+    (a RigProfile or its name): the node's calibration and mount 1σ scaled by how much
+    poorer the installation's stated calibration (reprojection RMS) and mount measurement
+    are than the reference its defaults state; never below the defaults (a better
+    installation keeps them: the ``realistic`` profile and its error-budget rows run on the
+    defaults exactly). The mount takes the principal point's share when the camera-to-body
+    calibration sees through the camera (``principal_point_in_mount``). {} for ``ideal``.
+
+    ``defaults``: the node's parameters (None: its installed parameter file).
+    """
+    from vlc_stereo_camera.core.installation import load_profile
+    if isinstance(profile, str):
+        profile = load_profile(profile)
+    if profile.ideal:
+        return {}
+    if defaults is None:
+        from vlc_common.core.config_files import config_path
+        with open(config_path('train_localizer', 'train_localizer_node.yaml'),
+                  encoding='utf-8') as stream:
+            defaults = yaml.safe_load(stream)['/**']['ros__parameters']
+    cal, mount = profile.calibration, profile.mount
+    k_cal = float(cal['reprojection_rms_px']) / REFERENCE_CALIBRATION_RMS_PX
+    k_mount = max(float(mount['camera_angle_measurement_sigma_deg']) / REFERENCE_MOUNT_SIGMA_DEG,
+                  k_cal * float(cal.get('principal_point_in_mount', 0.0)))
+    out = {}
+    if k_cal > 1.0:
+        out.update({name: round(float(defaults[name]) * k_cal, 9)
+                    for name in CALIBRATION_SIGMA_PARAMETERS})
+    if k_mount > 1.0:
+        out[MOUNT_SIGMA_PARAMETER] = [round(float(v) * k_mount, 9)
+                                      for v in defaults[MOUNT_SIGMA_PARAMETER]]
+    return out
 
 
 def drop_distortion(path):
@@ -239,6 +313,22 @@ def _rig_lamp_map_path(scenario):
                                  camera.get('alignment', 'straight'))
 
 
+#: ``write_installation``'s key of the localizer's stated error model (a params file)
+ERROR_MODEL_KEY = 'error_model_path'
+LOCALIZER_EXE = 'train_localizer_node'
+
+
+def receiver_params_files(belief, graph, package, exe, names=None):
+    """A processing node's parameter files: its installed ones (``names``; default
+    ``<exe>.yaml``), then for the localizer the installation's stated error model (its -p
+    parameters, the scenario's own, still win).
+    """
+    files = [graph.config_file(package, name) for name in (names or [f'{exe}.yaml'])]
+    if exe == LOCALIZER_EXE and belief.get(ERROR_MODEL_KEY):
+        files.append(belief[ERROR_MODEL_KEY])
+    return files
+
+
 def receiver_params(belief, scenario, exe):
     """A processing node's parameters: the belief files under the scenario's own; a
     ``lamp_map_path`` that names the rig's own (true) map is replaced by the survey (a
@@ -246,6 +336,7 @@ def receiver_params(belief, scenario, exe):
     kept as it is).
     """
     own = scenario.node_params.get(exe, {})
+    belief = {k: v for k, v in belief.items() if k != ERROR_MODEL_KEY}
     params = dict(belief, **own)
     if belief and own.get('lamp_map_path') and (
             os.path.realpath(os.path.expanduser(own['lamp_map_path']))
@@ -338,10 +429,10 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                     nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
         for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
             graph.start(package, exe, receiver_params(belief, scenario, exe),
-                        [graph.config_file(package, f'{exe}.yaml')])
+                        receiver_params_files(belief, graph, package, exe))
         for package, exe, files in scenario.extra_nodes:
             graph.start(package, exe, receiver_params(belief, scenario, exe),
-                        [graph.config_file(package, name) for name in files])
+                        receiver_params_files(belief, graph, package, exe, files))
         required = required_subscriptions(recorded_topics, scenario.run_processing)
         for topic, count in scenario.extra_subscriptions.items():
             required[topic] = required.get(topic, 0) + count
