@@ -323,7 +323,8 @@ def receiver_params_files(belief, graph, package, exe, names=None):
     ``<exe>.yaml``), then for the localizer the installation's stated error model (its -p
     parameters, the scenario's own, still win).
     """
-    files = [graph.config_file(package, name) for name in (names or [f'{exe}.yaml'])]
+    files = [graph.config_file(package, name)
+             for name in (names if names is not None else [f'{exe}.yaml'])]
     if exe == LOCALIZER_EXE and belief.get(ERROR_MODEL_KEY):
         files.append(belief[ERROR_MODEL_KEY])
     return files
