@@ -84,7 +84,12 @@ def test_a_poorer_installation_states_its_error_model_to_the_localizer(tmp_path)
     localizer gets, after its own file (a scenario's -p parameters still win). realistic
     and its error-budget rows state nothing: the defaults, exactly.
     """
-    from vlc_evaluation.runner import receiver_params, receiver_params_files, stated_error_model
+    from vlc_evaluation.runner import (
+        read_error_model,
+        receiver_params,
+        receiver_params_files,
+        stated_error_model,
+    )
     defaults = {'stereo_scale_sigma': 0.001, 'focal_length_sigma': 0.001,
                 'principal_point_sigma_px': 0.5, 'calibration_sigma_px': 0.5,
                 'calibration_disparity_sigma_px': 0.8, 'mount_angle_sigma_deg': [0.05, 0.1, 0.1]}
@@ -104,6 +109,8 @@ def test_a_poorer_installation_states_its_error_model_to_the_localizer(tmp_path)
     belief = write_installation(scenario, tmp_path)
     written = yaml.safe_load(open(belief['error_model_path']))['/**']['ros__parameters']
     assert written == harsh
+    assert read_error_model(tmp_path / 'h.installation' / 'belief') == harsh
+    assert read_error_model(tmp_path / 'r.installation' / 'belief') == {}
 
     class Graph:
         def config_file(self, package, name):

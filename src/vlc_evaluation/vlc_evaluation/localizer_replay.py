@@ -160,10 +160,8 @@ def replay_with_belief(bag, overrides=None):
     """
     bag = pathlib.Path(bag)
     belief = bag.parent / (bag.name + '.installation') / 'belief'
-    stated = {}
-    error_model = belief / 'train_localizer_node.yaml'       # runner.write_error_model
-    if error_model.exists():
-        stated = yaml.safe_load(error_model.read_text(encoding='utf-8'))['/**']['ros__parameters']
+    from vlc_evaluation.runner import read_error_model
+    stated = read_error_model(belief)
     params = load_params(None, dict({'lamp_map_path': str(belief / 'lamp_map.yaml'),
                                      'vehicle_path': str(belief / 'vehicle.yaml')},
                                     **dict(stated, **(overrides or {}))))

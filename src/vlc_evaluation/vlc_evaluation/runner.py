@@ -22,6 +22,7 @@ Phases of one scenario (each timed, ``result['timing']``):
 5. *stop*: SIGINT to every node at once, the recorder last (it closes the bag).
 """
 from dataclasses import dataclass, field
+import functools
 import logging
 import os
 import pathlib
@@ -268,7 +269,7 @@ def stated_error_model(profile, defaults=None):
     defaults exactly). The mount takes the principal point's share when the camera-to-body
     calibration sees through the camera (``principal_point_in_mount``). {} for ``ideal``.
 
-    ``defaults``: the node's parameters (None: its installed parameter file).
+    ``defaults``: the node's parameters (None: its installed parameter file, read once).
     """
     from vlc_stereo_camera.core.installation import load_profile
     if isinstance(profile, str):
@@ -276,10 +277,7 @@ def stated_error_model(profile, defaults=None):
     if profile.ideal:
         return {}
     if defaults is None:
-        from vlc_common.core.config_files import config_path
-        with open(config_path('train_localizer', 'train_localizer_node.yaml'),
-                  encoding='utf-8') as stream:
-            defaults = yaml.safe_load(stream)['/**']['ros__parameters']
+        defaults = _localizer_defaults()
     cal, mount = profile.calibration, profile.mount
     k_cal = float(cal['reprojection_rms_px']) / REFERENCE_CALIBRATION_RMS_PX
     k_mount = max(float(mount['camera_angle_measurement_sigma_deg']) / REFERENCE_MOUNT_SIGMA_DEG,
@@ -292,6 +290,20 @@ def stated_error_model(profile, defaults=None):
         out[MOUNT_SIGMA_PARAMETER] = [round(float(v) * k_mount, 9)
                                       for v in defaults[MOUNT_SIGMA_PARAMETER]]
     return out
+
+
+@functools.lru_cache(maxsize=1)
+def _localizer_defaults():
+    from vlc_evaluation.localizer_replay import load_params
+    return load_params()
+
+
+def read_error_model(belief_dir):
+    """The parameters of :func:`write_error_model`'s file in ``belief_dir`` ({} if none)."""
+    path = pathlib.Path(belief_dir) / f'{LOCALIZER_EXE}.yaml'
+    if not path.exists():
+        return {}
+    return yaml.safe_load(path.read_text(encoding='utf-8'))['/**']['ros__parameters']
 
 
 def drop_distortion(path):

@@ -22,6 +22,8 @@ every probed run inside 3σ and overstates the motion up to several times
 """
 import math
 
+import numpy as np
+
 
 class CrossTrackMotion:
     """Running lateral and vertical motion of ``base_link`` from its specific force.
@@ -102,21 +104,15 @@ class CrossTrackMotion:
         return tuple(math.sqrt(max(axis[5], 0.0) / self._weight) for axis in self._axes)
 
 
-def lateral_vertical(quat_xyzw, f):
+def lateral_vertical(R_map_base, f):
     """Lateral and vertical specific force (m/s²) of ``f`` (3, body axes) under the
-    attitude ``quat_xyzw`` (body → map, unit): vertical = map z; lateral = horizontal and
-    square to the body's heading (left positive), so the body's roll is not read as
-    lateral acceleration (g·sin φ: 0.17 m/s² at 1°).
+    attitude ``R_map_base`` (body → map): vertical = map z; lateral = horizontal and square
+    to the body's heading (left positive), so the body's roll is not read as lateral
+    acceleration (g·sin φ: 0.17 m/s² at 1°).
     """
-    x, y, z, w = quat_xyzw
-    fx, fy, fz = f
-    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w)
-    r10, r11, r12 = 2.0 * (x * y + z * w), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - x * w)
-    r20, r21, r22 = 2.0 * (x * z - y * w), 2.0 * (y * z + x * w), 1.0 - 2.0 * (x * x + y * y)
-    ax = r00 * fx + r01 * fy + r02 * fz
-    ay = r10 * fx + r11 * fy + r12 * fz
-    az = r20 * fx + r21 * fy + r22 * fz
-    norm = math.hypot(r00, r10)
+    ax, ay, az = (R_map_base @ np.asarray(f, dtype=float)).tolist()
+    hx, hy = float(R_map_base[0, 0]), float(R_map_base[1, 0])    # body x, horizontal part
+    norm = math.hypot(hx, hy)
     if norm < 1e-9:
-        return fy, az
-    return (-r10 * ax + r00 * ay) / norm, az
+        return float(f[1]), az
+    return (-hy * ax + hx * ay) / norm, az

@@ -580,19 +580,21 @@ class Localizer:
         track = cfg.fix.track
         q = (sample.quat_xyzw / np.linalg.norm(sample.quat_xyzw)
              if cfg.use_imu_attitude and sample.quat_xyzw is not None else None)
+        # the whole rotation only where it is needed: the motion estimate, a curve
+        R = (quat_to_matrix(q) if q is not None
+             and (cfg.motion_sigma_factor > 0.0 or not track.straight_x) else None)
         if cfg.motion_sigma_factor > 0.0:
-            f3 = (float(f[0]), float(f[1]), float(f[2]))
             # across the heading in map (the body's roll is not motion); body axes without
             # an attitude
             self._motion.add(sample.stamp_ns * 1e-9,
-                             *(lateral_vertical(q.tolist(), f3) if q is not None else f3[1:]))
+                             *(lateral_vertical(R, f) if R is not None
+                               else (float(f[1]), float(f[2]))))
         if q is not None:
             x, y, z, w = q
             # First row of the rotation matrix: only the along-track component is needed.
             row_x = ((1.0 - 2.0 * (y * y + z * z)), 2.0 * (x * y - z * w), 2.0 * (x * z + y * w))
             if track.straight_x:
                 return float(row_x[0] * f[0] + row_x[1] * f[1] + row_x[2] * f[2])
-            R = quat_to_matrix(np.array([x, y, z, w]))
             return float(self._tangent() @ (R @ np.asarray(f, dtype=float)))
         # no attitude: the platform is taken as aligned with the track (body x = tangent)
         return float(f[0])
