@@ -15,16 +15,30 @@ whole ``_process`` (median, p99, max; CPU = this thread's); and a SHA-256 of eve
 published cloud's bytes per node and sequence (``--hash-only``: one pass, no timing): a
 change to the cores that must not change their output keeps every hash.
 
+``--pace``: one frame every camera frame period (``fps`` of the installed
+stereo_camera_node.yaml), the thread asleep in between, as in the graph. Back to back, a
+frame finds the CPU's caches and branch predictors warm from the one before; after the
+graph's ~30 ms idle between frames it does not (on the 2-core machines of this project,
+measured 2026-12-07 on the latency bags' frames: 1.5-1.8x the back-to-back CPU per
+frame). The paced figures are those the nodes report in the replay; the back-to-back
+ones are the code's own cost, for A/B.
+
+``--bag PATH``: the frames of a recorded sensor bag (its stereo images and camera_info,
+every frame in stamp order, at most ``--frames``) instead of the rendered sequences,
+e.g. the latency replay's ``OUT/latency_bags/sensors_120kmh`` or a real camera's bag;
+the spot locator is given ``--bag-speed`` (m/s) as the odometry speed.
+
 Usage::
 
     receivers_benchmark [--frames 60] [--repeats 3] [--only decoder,spot] [--min-of K]
-                        [--hash-only] [--profile N]
+                        [--hash-only] [--profile N] [--pace] [--bag PATH --bag-speed V]
 """
 import argparse
 import collections
 import copy
 import cProfile
 import hashlib
+import pathlib
 import pstats
 import time
 
@@ -85,6 +99,31 @@ class _Capture:
         self.clouds.append(bytes(msg.data))
 
 
+def bag_sequence(path, frames):
+    """(camera_info messages, [(stamp_ns, left Image, right Image)]) of a sensor bag: the
+    first ``frames`` stereo pairs (both images with one stamp) in stamp order.
+    """
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from vlc_bags.bagio import iter_raw
+    sides = ('/stereo/left/', '/stereo/right/')
+    infos, images = [None, None], ({}, {})
+    for m in iter_raw(path, [side + t for side in sides for t in ('image_raw', 'camera_info')]):
+        side = 0 if m.topic.startswith(sides[0]) else 1
+        if m.topic.endswith('camera_info'):
+            infos[side] = deserialize_message(bytes(m.data), CameraInfo)
+            continue
+        msg = deserialize_message(bytes(m.data), Image)
+        images[side][msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec] = msg
+    if None in infos:
+        raise ValueError(f'{path}: no camera_info on {sides[infos.index(None)]}camera_info')
+    stamps = sorted(set(images[0]) & set(images[1]))[:frames]
+    if not stamps:
+        raise ValueError(f'{path}: no stereo pair (left and right image with one stamp)')
+    return infos, [(t, images[0][t], images[1][t]) for t in stamps]
+
+
 def _decoder_node():
     from vlc_decoder.vlc_decoder_node import VlcDecoderNode
     node = VlcDecoderNode()
@@ -122,14 +161,23 @@ def _fastest(function, min_of):
     return 1e3 * best
 
 
+#: seconds between frames with ``--pace`` (0: back to back); set by main
+PACE_S = 0.0
+
+
 def _run(frames, process, reported, profile, fastest=None):
     """``process(frame)`` for every frame: (core CPU ms, reported ms, _process CPU ms).
     ``fastest(frame)``, if given, is called before each frame (the min-of-k timing).
+    With :data:`PACE_S`, each frame starts ``PACE_S`` after the one before started.
     """
     whole = []
+    due = time.monotonic()
     for frame in frames:
         if fastest is not None:
             fastest(frame)
+        if PACE_S:
+            due += PACE_S
+            time.sleep(max(due - time.monotonic(), 0.0))
         start = time.thread_time()
         if profile is not None:
             profile.enable()
@@ -227,7 +275,17 @@ def main(argv=None):
                         'of the code itself on a shared machine, for A/B comparisons')
     parser.add_argument('--profile', type=int, default=0,
                         help='print the N most expensive functions (cProfile, cumulative)')
+    parser.add_argument('--pace', action='store_true',
+                        help='one frame per camera frame period, asleep in between, as '
+                        'in the graph (the figures the nodes report in the replay)')
+    parser.add_argument('--bag', default='', help='frames of this sensor bag instead of '
+                        'the rendered sequences')
+    parser.add_argument('--bag-speed', type=float, default=0.0,
+                        help='with --bag: the speed (m/s) the spot locator is given')
     args = parser.parse_args(argv)
+    if args.pace and args.min_of:
+        parser.error('--pace times each frame as the graph does; --min-of would run the '
+                     'frame K times back to back before it')
     import rclpy
 
     from vlc_common.process import keep_large_buffers
@@ -242,35 +300,46 @@ def main(argv=None):
     repeats = 1 if args.hash_only else args.repeats
     totals = {n: ([], [], [], []) for n in nodes}
     profiles = {n: cProfile.Profile() for n in nodes} if args.profile else {}
-    print(f'{args.frames} frames per sequence, {repeats} pass(es); ms per stereo pair as '
+    global PACE_S
+    if args.pace:
+        from vlc_evaluation.benchmarks.spot_locator import graph_timing
+        PACE_S = 1.0 / graph_timing()['fps']
+    sequences = ([(pathlib.Path(args.bag).name, None)] if args.bag
+                 else [(f'{name}{" raw" if raw else ""}', (speed_kmh, raw))
+                       for raw in (False, True) for name, speed_kmh in SEQUENCES])
+    print(f'{args.frames} frames per sequence, {repeats} pass(es), '
+          + (f'one frame every {1e3 * PACE_S:.1f} ms' if PACE_S else 'back to back')
+          + '; ms per stereo pair as '
           'median p99 max: core = CPU time of the core (tracker.process, locator.process), '
           'reported = what the node reports in its diagnostics (wall time of the same '
           'call), _process = CPU time of the node\'s whole per-frame path', flush=True)
-    for raw in (False, True):
-        for name, speed_kmh in SEQUENCES:
-            infos, frames, speed = render_sequence(speed_kmh, args.frames, raw)
-            label = f'{name}{" raw" if raw else ""}'
-            for node in nodes:
-                core, reported, whole, fastest, digests = [], [], [], [], set()
-                for _ in range(repeats):
-                    clouds, c, r, w = RUNNERS[node](
-                        infos, frames, speed, profiles.get(node),
-                        0 if args.hash_only else args.min_of, fastest)
-                    digests.add(_digest(clouds))
-                    core += c
-                    reported += r
-                    whole += w
-                for total, part in zip(totals[node], (core, reported, whole, fastest)):
-                    total.extend(part)
-                size = sum(len(c) for c in clouds)
-                line = (f'{node:8s} {label:14s} hash {",".join(sorted(digests))} '
-                        f'bytes {size:7d}')
-                if not args.hash_only:
-                    line += (f' | core {_stats(core)} | reported {_stats(reported)} | '
-                             f'_process {_stats(whole)}')
-                    if fastest:
-                        line += f' | fastest {_stats(fastest)}'
-                print(line, flush=True)
+    for label, rendered in sequences:
+        if rendered is None:
+            infos, frames = bag_sequence(args.bag, args.frames)
+            speed = args.bag_speed
+        else:
+            infos, frames, speed = render_sequence(rendered[0], args.frames, rendered[1])
+        for node in nodes:
+            core, reported, whole, fastest, digests = [], [], [], [], set()
+            for _ in range(repeats):
+                clouds, c, r, w = RUNNERS[node](
+                    infos, frames, speed, profiles.get(node),
+                    0 if args.hash_only else args.min_of, fastest)
+                digests.add(_digest(clouds))
+                core += c
+                reported += r
+                whole += w
+            for total, part in zip(totals[node], (core, reported, whole, fastest)):
+                total.extend(part)
+            size = sum(len(c) for c in clouds)
+            line = (f'{node:8s} {label:14s} hash {",".join(sorted(digests))} '
+                    f'bytes {size:7d}')
+            if not args.hash_only:
+                line += (f' | core {_stats(core)} | reported {_stats(reported)} | '
+                         f'_process {_stats(whole)}')
+                if fastest:
+                    line += f' | fastest {_stats(fastest)}'
+            print(line, flush=True)
     if not args.hash_only:
         for node, (core, reported, whole, fastest) in totals.items():
             print(f'{node:8s} {"all":14s} core {_stats(core)} | reported {_stats(reported)} '
