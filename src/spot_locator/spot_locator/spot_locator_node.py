@@ -294,6 +294,8 @@ class SpotLocatorNode(Node):
         if outcome == CameraInfoKeeper.PENDING:
             self._warn(f'camera_info_pending_{side}', f'{side} camera_info {reason}')
             return
+        if outcome == CameraInfoKeeper.SAME:
+            return          # the geometry of the kept pair was derived when it came (KEPT)
         both = self._infos.both()
         if both is None:
             return

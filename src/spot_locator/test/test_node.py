@@ -310,3 +310,19 @@ def test_invalid_parameters_are_refused(ros_env):
                 Parameter('min_disparity_px', value=500.0)])
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_repeated_camera_info_does_not_derive_the_geometry_again(harness, monkeypatch):
+    """camera_info comes with every frame: the geometry is derived when a pair is kept."""
+    h = harness()
+    h.send_infos()
+    located = h.node._located
+    calls = []
+    derive = conversions.stereo_geometry
+    monkeypatch.setattr(conversions, 'stereo_geometry',
+                        lambda *infos: calls.append(infos) or derive(*infos))
+    infos = [h.node._infos.current[i] for i in (0, 1)]
+    for _ in range(10):
+        for i, info in enumerate(infos):
+            h.node._on_info(i, info)
+    assert calls == [] and h.node._located is located

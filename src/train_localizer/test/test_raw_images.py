@@ -183,3 +183,29 @@ def test_camera_info_of_raw_images_turns_the_camera_axes(lamp_map):
         for index, info in enumerate(ideal):
             intrinsics.update(index, _msg(info))
     assert np.array_equal(geometry.R_base_cam, mount) and join.rectify_left is None
+
+
+def test_repeated_camera_info_is_not_derived_again(lamp_map, monkeypatch):
+    """camera_info comes with every frame (30 Hz per camera): the models are derived when
+    a pair is kept, not again for each identical message.
+    """
+    from train_localizer import conversions
+    calls = []
+    derive = conversions.raw_camera_model
+    monkeypatch.setattr(conversions, 'raw_camera_model',
+                        lambda msg: calls.append(msg) or derive(msg))
+    infos = StereoRenderer(RendererConfig(optics_truth=OpticsTruth.example()), lamp_map,
+                           Trajectory(MotionProfile('stationary')), seed=1).camera_info_dicts()
+    geometry = RigGeometry()
+    intrinsics = CameraInfoIntrinsics(geometry, join_config=JoinConfig())
+    for _ in range(5):
+        for index, info in enumerate(infos):
+            intrinsics.update(index, _msg(info))
+    assert len(calls) == 2 and intrinsics.source == 'camera_info'   # left and right, once
+    turned = geometry.R_base_cam.copy()
+    ideal = StereoRenderer(RendererConfig(), lamp_map, Trajectory(MotionProfile('stationary')),
+                           seed=1).camera_info_dicts()
+    for _ in range(3):          # a different pair, confirmed: derived again
+        for index, info in enumerate(ideal):
+            intrinsics.update(index, _msg(info))
+    assert len(calls) > 2 and not np.array_equal(geometry.R_base_cam, turned)

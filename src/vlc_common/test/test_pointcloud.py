@@ -76,3 +76,19 @@ def test_without_a_layout_any_consistent_cloud_reads_and_nan_values_pass():
     msg = records_to_cloud(np.zeros(1, dtype=[('a', '<f8')]), Header())
     msg.is_bigendian, msg.data = True, big.tobytes()
     assert cloud_to_records(msg)['a'][0] == 2.5            # generic: big endian honoured
+
+
+def test_a_known_description_is_still_checked_per_message():
+    """The dtype of a description is derived once; the data length is checked on every
+    message, and a description that differs in one field's type is derived (and refused)
+    afresh.
+    """
+    rec, msg = _cloud(PAIR_DTYPE, 2)
+    assert cloud_to_records(msg, PAIR_DTYPE).shape == (2,)
+    msg.data = bytes(msg.data) + bytes(8)
+    with pytest.raises(ValueError, match='point cloud data'):
+        cloud_to_records(msg, PAIR_DTYPE)
+    _, msg = _cloud(PAIR_DTYPE, 2)
+    msg.fields[0].datatype = PointField.FLOAT32
+    with pytest.raises(ValueError, match='the layout has'):
+        cloud_to_records(msg, PAIR_DTYPE)

@@ -20,6 +20,13 @@ _POINTFIELD_TYPE = {np.dtype('<' + code).str: datatype
                     for datatype, code in _NUMPY_TYPE.items()}
 
 
+# A receiver's record dtype per cloud description (a node receives the same few layouts
+# at 30 Hz; deriving and checking the dtype per message cost ~0.4 ms). Bounded: a stream
+# of ever-different descriptions (malformed input) only refills the cache.
+_CACHE_SIZE = 64
+_DTYPES = {}
+
+
 def records_to_cloud(records, header):
     """Structured array (little endian, scalar fields) → unordered PointCloud2."""
     fields = []
@@ -57,6 +64,30 @@ def cloud_to_records(msg, layout=None, required=()):
     1) with row padding (``row_step`` other than ``width·point_step``), and, with
     ``layout``, a big-endian cloud or a field of the wrong type.
     """
+    key = (bool(msg.is_bigendian), int(msg.point_step), layout, tuple(required),
+           tuple((f.name, f.offset, f.datatype, f.count) for f in msg.fields))
+    dtype = _DTYPES.get(key)
+    if dtype is None:
+        dtype = _cloud_dtype(msg, layout, required)
+        if len(_DTYPES) >= _CACHE_SIZE:
+            _DTYPES.clear()
+        _DTYPES[key] = dtype
+    n = int(msg.width) * int(msg.height)
+    size = len(msg.data)
+    if int(msg.height) > 1 and int(msg.row_step) != int(msg.width) * int(msg.point_step):
+        raise ValueError(f'row_step {msg.row_step} B is not width {msg.width} x point_step '
+                         f'{msg.point_step} B')
+    if size != n * int(msg.point_step):
+        raise ValueError(f'point cloud data {size} B for {n} points x {msg.point_step} B')
+    if dtype.names is None:
+        return np.zeros(0)
+    return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
+
+
+def _cloud_dtype(msg, layout, required):
+    """The record dtype :func:`cloud_to_records` reads ``msg`` with (no field: a plain
+    float dtype); raises ValueError for a description it refuses.
+    """
     if layout is not None and msg.is_bigendian:
         raise ValueError('big-endian cloud: the layout is little endian')
     endian = '>' if msg.is_bigendian else '<'
@@ -88,15 +119,7 @@ def cloud_to_records(msg, layout=None, required=()):
     missing = [n for n in required if n not in names]
     if missing:
         raise ValueError(f'missing fields {", ".join(missing)}')
-    n = int(msg.width) * int(msg.height)
-    size = len(msg.data)
-    if int(msg.height) > 1 and int(msg.row_step) != int(msg.width) * int(msg.point_step):
-        raise ValueError(f'row_step {msg.row_step} B is not width {msg.width} x point_step '
-                         f'{msg.point_step} B')
-    if size != n * int(msg.point_step):
-        raise ValueError(f'point cloud data {size} B for {n} points x {msg.point_step} B')
     if not names:
-        return np.zeros(0)
-    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
-                      'itemsize': msg.point_step})
-    return np.frombuffer(bytes(msg.data), dtype=dtype, count=n)
+        return np.dtype(float)
+    return np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                     'itemsize': msg.point_step})
