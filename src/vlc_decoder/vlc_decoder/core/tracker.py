@@ -217,13 +217,18 @@ def profile_lag_rows(a, b, max_rows=MAX_PROFILE_LAG_ROWS):
     the profiles overlap on fewer than :data:`MIN_LAG_OVERLAP_ROWS` rows at some lag or
     show no chips.
     """
-    la = dict(zip(a.rows.tolist(), a.level))
+    # the rows of a profile are sorted and distinct: a's row r + k is found by bisection
+    a_rows, b_rows = np.asarray(a.rows), np.asarray(b.rows)
+    dtype = np.result_type(a.level, b.level)
     scores = []
     for k in range(-max_rows, max_rows + 1):
-        pairs = [(la[r + k], lv) for r, lv in zip(b.rows.tolist(), b.level) if r + k in la]
-        if len(pairs) < MIN_LAG_OVERLAP_ROWS:
+        shifted = b_rows + k
+        at = np.minimum(np.searchsorted(a_rows, shifted), len(a_rows) - 1)
+        hit = a_rows[at] == shifted
+        if np.count_nonzero(hit) < MIN_LAG_OVERLAP_ROWS:
             return None
-        x, y = np.array(pairs).T
+        x = np.asarray(a.level[at[hit]], dtype)
+        y = np.asarray(b.level[hit], dtype)
         x, y = x - x.mean(), y - y.mean()
         norm = math.sqrt(float(x @ x) * float(y @ y))
         if not norm > 0.0:
@@ -251,7 +256,19 @@ def _on_left_rows(spot, lag):
                                weight=np.interp(rows - lag, spot.rows, spot.weight))
 
 
-def combine_profiles(left, right, align=False, lag_rows=None):
+def _measured_lag(a, b, lags):
+    """:func:`profile_lag_rows` of ``a`` and ``b``, measured once per frame: ``lags`` is
+    the frame's memo (keyed by the spots' identities, which it keeps alive), or None.
+    """
+    if lags is None:
+        return profile_lag_rows(a, b)
+    key = (id(a), id(b))
+    if key not in lags:
+        lags[key] = (a, b, profile_lag_rows(a, b))
+    return lags[key][2]
+
+
+def combine_profiles(left, right, align=False, lag_rows=None, lags=None):
     """One row profile from a stereo pair of spots (either may be None).
 
     ``align`` (raw images, whose right camera is triggered a few microseconds off the
@@ -260,7 +277,7 @@ def combine_profiles(left, right, align=False, lag_rows=None):
     tracker's running estimate) before they are averaged, and a right profile used alone
     by ``lag_rows``, so that every profile of a track runs on one clock; averaged row by
     row, a lag of 40 us (0.8 chip) smeared the chips of every lamp and no UID was
-    decoded.
+    decoded. ``lags``: the frame's memo of measured lags (see :func:`_measured_lag`).
 
     Returns rows (R,), level (R,), weight (R,) and a label of the source used.
     """
@@ -275,7 +292,7 @@ def combine_profiles(left, right, align=False, lag_rows=None):
         return s.rows, s.level, s.weight, label + ('_cut' if s.cut else '')
     a, b = use
     if align:
-        lag = profile_lag_rows(a, b)
+        lag = _measured_lag(a, b, lags)
         if lag is None:
             lag = lag_rows
         if lag is None:
@@ -326,6 +343,7 @@ class LampTracker:
         # their median moves the profiles that cannot show one (the trigger skew is the
         # camera's, the same for every lamp)
         self.profile_lags = []
+        self._lag_median = ((), None)     # (the lags it was taken of, their median)
         self.tracks = []
         self._ids = itertools.count(1)
         self.anomalies = {}          # uid -> count of tracks that decoded it
@@ -358,14 +376,21 @@ class LampTracker:
                 > self.cfg.stamp_jump_reset_s * 1e9)
 
     def _lag_estimate(self):
-        """Median of the measured profile lags (rows), None before any."""
-        return float(np.median(self.profile_lags)) if self.profile_lags else None
+        """Median of the measured profile lags (rows), None before any (computed again
+        only when the lags changed: it is asked for several times a frame).
+        """
+        key = tuple(self.profile_lags)
+        if key != self._lag_median[0]:
+            self._lag_median = (key, float(np.median(key)) if key else None)
+        return self._lag_median[1]
 
-    def _profile_lag(self, spot_l, spot_r):
-        """Raw images: record the lag of a pair of whole spots; the running estimate."""
+    def _profile_lag(self, spot_l, spot_r, lags=None):
+        """Raw images: record the lag of a pair of whole spots; the running estimate.
+        ``lags``: the frame's memo (:func:`_measured_lag`).
+        """
         if (self.rectify is not None and spot_l is not None and spot_r is not None
                 and not spot_l.cut and not spot_r.cut):
-            lag = profile_lag_rows(spot_l, spot_r)
+            lag = _measured_lag(spot_l, spot_r, lags)
             if lag is not None:
                 self.profile_lags.append(lag)
                 del self.profile_lags[:-PROFILE_LAG_MEMORY]
@@ -400,10 +425,13 @@ class LampTracker:
             LOG.warning('frame_rate_hz %g does not match the image stamps: lamp packets are '
                         'assembled on the stamps as they are', self.cfg.frame_rate_hz)
         observations = pair_spots(left, right, self.max_disparity_px, self.rectify)
-        matches, tight = self._associate(stamp_ns, observations)
+        # raw images: each pair's lag is measured once in this frame, for the association
+        # and the stripes alike
+        lags = {}
+        matches, tight = self._associate(stamp_ns, observations, lags)
         # each observation's stripes, read once (a raw pair's lag is recorded once)
         profiles = [combine_profiles(spot_l, spot_r, self.rectify is not None,
-                                     self._profile_lag(spot_l, spot_r))
+                                     self._profile_lag(spot_l, spot_r, lags), lags)
                     for spot_l, spot_r in observations]
         records = [self._observe(stamp_ns, *observations[i], profiles[i], matches.get(i))
                    for i in range(len(observations))]
@@ -520,10 +548,10 @@ class LampTracker:
         disparity = track.disparity if track is not None and track.disparity else 0.0
         return spot_r.u + disparity, spot_r.v, None
 
-    def _associate(self, stamp_ns, observations):
+    def _associate(self, stamp_ns, observations, lags=None):
         """Greedy nearest-neighbour association of observations to tracks: ({observation
         index: track}, the indices matched tightly: the track seen in the last frame and
-        the spot close to its prediction).
+        the spot close to its prediction). ``lags``: the frame's memo of measured lags.
         """
         pairs = []
         for t_index, track in enumerate(self.tracks):
@@ -545,10 +573,15 @@ class LampTracker:
         # are off a track's chip grid, or read chips its packet does not have, belongs
         # to another lamp
         checked = []
+        # an observation's profile, once for all the tracks it is a candidate of (the lag
+        # estimate is the same for all of them: this frame's lags are recorded later)
+        candidate_profiles = {}
         for dist, t_index, o_index, tight in sorted(pairs):
-            rows, level, weight, _ = combine_profiles(*observations[o_index],
-                                                      self.rectify is not None,
-                                                      self._lag_estimate())
+            if o_index not in candidate_profiles:
+                candidate_profiles[o_index] = combine_profiles(
+                    *observations[o_index], self.rectify is not None, self._lag_estimate(),
+                    lags)
+            rows, level, weight, _ = candidate_profiles[o_index]
             if self.tracks[t_index].assembler.accepts(stamp_ns, rows, level, weight, tight):
                 checked.append((dist, t_index, o_index, tight))
         pairs = checked

@@ -19,7 +19,7 @@ change to the cores that must not change their output keeps every hash.
 stereo_camera_node.yaml), the thread asleep in between, as in the graph. Back to back, a
 frame finds the CPU's caches and branch predictors warm from the one before; after the
 graph's ~30 ms idle between frames it does not (on the 2-core machines of this project,
-measured 2026-12-07 on the latency bags' frames: 1.5-1.8x the back-to-back CPU per
+measured 2026-12-07 on the latency bags' frames: 1.6-1.8x the back-to-back CPU per
 frame). The paced figures are those the nodes report in the replay; the back-to-back
 ones are the code's own cost, for A/B.
 
