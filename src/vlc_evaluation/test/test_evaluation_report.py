@@ -273,3 +273,34 @@ def test_live_graph_alone_latency_section_and_log(tmp_path):
     table, runs = report.latency_runs_table(tmp_path)
     assert runs[0]['live_samples'] == 4 and runs[0]['live_p99_ms'] == pytest.approx(36.97)
     assert '| 31.50 / 36.97 |' in table and table.rstrip().endswith('| – |')
+
+
+def test_replays_of_a_drawn_installation_have_their_own_latency_table(tmp_path):
+    """The realistic profile's latency bags are tabled apart from the ideal rig's, named
+    in the README's summary and kept in the latency log.
+    """
+    def replay(profile, e2e):
+        return {'bag': f'bags/{profile}', 'poses': 10, 'first_pose_s': 0.2,
+                'scenario': {'realtime_factor': 1.0, 'rig_profile': profile},
+                'latency_ms': {'exposure_to_pose': e2e},
+                'processing_ms': {'vlc_decoder': [7.0, 9.0, 9.5]},
+                'every_pose': {'max_m': 0.01, 'mean_m': 0.005, 'p95_m': 0.009},
+                'identification': {'first_confirmation_m': {}, 'wrong_uids': 0, 'frames': []},
+                'health': {'degraded': False, 'camera_lag_max_s': 0.0}}
+    replays = [replay('ideal', [25.0, 27.0]), replay('realistic', [33.0, 35.0, 37.0])]
+    ideal, drawn = report.replays_by_profile(replays)
+    assert [r['bag'] for r in ideal] == ['bags/ideal']
+    assert [r['bag'] for r in drawn] == ['bags/realistic']
+    text = report.write_report([], [], tmp_path, replays=replays)
+    assert '### Latency, sensor bags of a drawn installation replayed' in text
+    figures = json.loads((tmp_path / 'report.json').read_text())['figures']
+    assert figures['latency_replay']['exposure_to_pose']['count'] == 2
+    assert figures['latency_replay_realistic']['exposure_to_pose']['count'] == 3
+    summary = report.summary_markdown(figures, 'docs/RESULTS.md')
+    assert 'median 26.0 ms' in summary and '`realistic` rig profile: median 35.0 ms' in summary
+    report.append_latency_run(tmp_path, 'cmd', report.latency_table(ideal)[1], 0.0,
+                              realistic=report.latency_table(drawn)[1])
+    table, runs = report.latency_runs_table(tmp_path)
+    assert runs[0]['realistic_samples'] == 3
+    assert runs[0]['realistic_decoder_processing_ms'] == pytest.approx(7.0)
+    assert table.rstrip().endswith('| 35.00 / 36.96, 7.00 / – |')

@@ -417,7 +417,8 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                           for p in graph.procs.values())
 
     try:
-        belief = {} if replay else write_installation(scenario, out_dir)
+        # (a replayed bag of a drawn installation: the receivers get its belief too)
+        belief = write_installation(scenario, out_dir)
         recorder = {'output': str(bag), 'topics': list(recorded_topics),
                     'discovery_interval_s': RECORDER_SCAN_S,
                     'flush_interval_s': RECORDER_FLUSH_S}

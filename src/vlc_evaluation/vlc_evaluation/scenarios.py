@@ -264,13 +264,17 @@ def score_dynamic(run, scenario, lamp_map, heading_plot=False):
     return out
 
 
-def replay_scenario(bag, realtime_factor=1.0, lean_recording=False):
-    """A scenario that replays the sensor bag ``bag`` through the processing nodes."""
+def replay_scenario(bag, realtime_factor=1.0, lean_recording=False, rig_profile='ideal',
+                    seed=1):
+    """A scenario that replays the sensor bag ``bag`` through the processing nodes; a bag
+    recorded from a drawn installation (``rig_profile``, ``seed``) is replayed with that
+    installation's belief handed to the receivers, as in a live run.
+    """
     start, end = bag_time_range(bag)
     bag = pathlib.Path(bag)
     return Scenario(name=f'replay_{bag.name}', replay_bag=str(bag),
                     duration_s=max(end - start, 0) * 1e-9, realtime_factor=realtime_factor,
-                    lean_recording=lean_recording)
+                    lean_recording=lean_recording, rig_profile=rig_profile, seed=seed)
 
 
 def score_replay(run, scenario, lamp_map):
