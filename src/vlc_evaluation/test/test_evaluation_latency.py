@@ -83,3 +83,27 @@ def test_no_receive_log_gives_no_samples(tmp_path):
     (tmp_path / RECEIVE_TIMES_FILE).unlink()
     assert all(v == [] for v in latency.frame_latencies(run).values())
     assert latency.summarize_ms([])['median_ms'] is None
+
+
+def test_latency_replays_name_their_profile_and_rescoring_skips_missing_bags(tmp_path):
+    """An output folder from before the realistic latency bags: rescoring replays what it
+    has; each replay carries the rig profile its bag was recorded on (the receivers get
+    that installation's belief), the ideal bags keep their names.
+    """
+    from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__String as String
+
+    from vlc_bags.bagio import write_bag
+    from vlc_evaluation import cli
+
+    def bag(name):
+        write_bag(tmp_path / 'latency_bags' / name,
+                  [('/a', 'std_msgs/msg/String', t, String(data='x')) for t in (1, 2)])
+    for speed in cli.LATENCY_SPEEDS_KMH:
+        bag(f'sensors_{speed:03d}kmh')
+    replays = cli.latency_replays(tmp_path, rescore=True)
+    assert [(s.rig_profile, pathlib.Path(s.replay_bag).name) for s in replays] == [
+        ('ideal', f'sensors_{speed:03d}kmh') for speed in cli.LATENCY_SPEEDS_KMH]
+    bag(f'realistic_sensors_{cli.LATENCY_SPEEDS_KMH[0]:03d}kmh')
+    replays = cli.latency_replays(tmp_path, rescore=True)
+    assert [s.rig_profile for s in replays] == ['ideal', 'ideal', 'realistic']
+    assert replays[-1].seed == cli.LATENCY_INSTALLATION_SEED and replays[-1].lean_recording

@@ -75,15 +75,19 @@ def live_latency_scenarios():
 
 
 def latency_replays(out, rescore=False):
-    """Replay scenarios at real-time factor 1 of the latency sensor bags, recording the
-    bags first (rig and recorder only, slowed to 0.3 so no frame is lost) where missing;
-    a lean recording (no 400 Hz IMU topics).
+    """Replay scenarios at real-time factor 1 of the latency sensor bags (each speed, the
+    ideal rig and installation LATENCY_INSTALLATION_SEED of each drawn profile of
+    LATENCY_PROFILES), recording the bags first (rig and recorder only, slowed to 0.3 so
+    no frame is lost) where missing, or with ``rescore`` leaving a missing one out; a lean
+    recording (no 400 Hz IMU topics).
     """
     replays = []
     for profile, speed in itertools.product(LATENCY_PROFILES, LATENCY_SPEEDS_KMH):
         prefix = '' if profile == 'ideal' else f'{profile}_'
         bag = out / 'latency_bags' / f'{prefix}sensors_{speed:03d}kmh'
-        if not (bag / 'metadata.yaml').exists() and not rescore:
+        if not (bag / 'metadata.yaml').exists() and rescore:
+            continue            # an output folder from before this bag was recorded
+        if not (bag / 'metadata.yaml').exists():
             # uncompressed: the player would otherwise decompress a zstd chunk of several
             # frames at once, a CPU burst on the cores the measured nodes share
             recording = sample_scenario(bag.name, float(speed), duration_s=LATENCY_BAG_S,
