@@ -85,25 +85,35 @@ def test_no_receive_log_gives_no_samples(tmp_path):
     assert latency.summarize_ms([])['median_ms'] is None
 
 
-def test_latency_replays_name_their_profile_and_rescoring_skips_missing_bags(tmp_path):
+def test_latency_replays_take_their_installation_from_the_bag(tmp_path):
     """An output folder from before the realistic latency bags: rescoring replays what it
-    has; each replay carries the rig profile its bag was recorded on (the receivers get
-    that installation's belief), the ideal bags keep their names.
+    has. A bag recorded from a drawn installation says so in its custom_data, and its
+    replay hands the receivers that installation's belief; other bags replay as ideal.
     """
     from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__String as String
+    import yaml
 
     from vlc_bags.bagio import write_bag
-    from vlc_evaluation import cli
+    from vlc_evaluation import cli, scenarios
 
-    def bag(name):
-        write_bag(tmp_path / 'latency_bags' / name,
-                  [('/a', 'std_msgs/msg/String', t, String(data='x')) for t in (1, 2)])
+    def bag(name, custom=None):
+        path = tmp_path / 'latency_bags' / name
+        write_bag(path, [('/a', 'std_msgs/msg/String', t, String(data='x')) for t in (1, 2)])
+        if custom is not None:
+            meta = yaml.safe_load((path / 'metadata.yaml').read_text())
+            meta['rosbag2_bagfile_information']['custom_data'] = custom
+            (path / 'metadata.yaml').write_text(yaml.safe_dump(meta))
+        return path
     for speed in cli.LATENCY_SPEEDS_KMH:
         bag(f'sensors_{speed:03d}kmh')
     replays = cli.latency_replays(tmp_path, rescore=True)
     assert [(s.rig_profile, pathlib.Path(s.replay_bag).name) for s in replays] == [
         ('ideal', f'sensors_{speed:03d}kmh') for speed in cli.LATENCY_SPEEDS_KMH]
-    bag(f'realistic_sensors_{cli.LATENCY_SPEEDS_KMH[0]:03d}kmh')
+    bag(f'realistic_sensors_{cli.LATENCY_SPEEDS_KMH[0]:03d}kmh',
+        {'rig_profile': 'realistic', 'seed': '1', 'installation_seed': '7'})
     replays = cli.latency_replays(tmp_path, rescore=True)
     assert [s.rig_profile for s in replays] == ['ideal', 'ideal', 'realistic']
-    assert replays[-1].seed == cli.LATENCY_INSTALLATION_SEED and replays[-1].lean_recording
+    assert replays[-1].drawn_seed == 7 and replays[-1].lean_recording
+    # a bag whose custom_data says something unreadable replays as ideal
+    odd = bag('odd', {'rig_profile': 'realistic', 'seed': 'x'})
+    assert scenarios.recorded_installation(odd) == ('ideal', 1, 0)

@@ -264,17 +264,33 @@ def score_dynamic(run, scenario, lamp_map, heading_plot=False):
     return out
 
 
-def replay_scenario(bag, realtime_factor=1.0, lean_recording=False, rig_profile='ideal',
-                    seed=1):
-    """A scenario that replays the sensor bag ``bag`` through the processing nodes; a bag
-    recorded from a drawn installation (``rig_profile``, ``seed``) is replayed with that
-    installation's belief handed to the receivers, as in a live run.
+def recorded_installation(bag):
+    """(rig profile, seed, installation seed) a sensor bag was recorded with: the
+    recorder's ``custom_data`` of a drawn installation, else ('ideal', 1, 0).
+    """
+    import yaml
+    try:
+        info = yaml.safe_load((pathlib.Path(bag) / 'metadata.yaml').read_text(
+            encoding='utf-8'))['rosbag2_bagfile_information']
+        custom = info.get('custom_data') or {}
+        return (str(custom.get('rig_profile', 'ideal')), int(custom.get('seed', 1)),
+                int(custom.get('installation_seed', 0)))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return 'ideal', 1, 0
+
+
+def replay_scenario(bag, realtime_factor=1.0, lean_recording=False):
+    """A scenario that replays the sensor bag ``bag`` through the processing nodes. A bag
+    recorded from a drawn installation (its ``custom_data``: :func:`recorded_installation`)
+    is replayed with that installation's belief handed to the receivers, as in a live run.
     """
     start, end = bag_time_range(bag)
+    profile, seed, installation_seed = recorded_installation(bag)
     bag = pathlib.Path(bag)
     return Scenario(name=f'replay_{bag.name}', replay_bag=str(bag),
                     duration_s=max(end - start, 0) * 1e-9, realtime_factor=realtime_factor,
-                    lean_recording=lean_recording, rig_profile=rig_profile, seed=seed)
+                    lean_recording=lean_recording, rig_profile=profile, seed=seed,
+                    installation_seed=installation_seed)
 
 
 def score_replay(run, scenario, lamp_map):
