@@ -358,48 +358,32 @@ def test_raw_images_align_the_right_profile_by_the_trigger_skew():
     assert agreement(rows[inside], level[inside]) > 0.8 > as_is + 0.2
 
 
-def _lag_by_lookup(a, b, max_rows=3, min_overlap=12):
-    """profile_lag_rows written row by row (a dict of a's rows): the reference."""
-    import math
-    la = dict(zip(a.rows.tolist(), a.level))
-    scores = []
-    for k in range(-max_rows, max_rows + 1):
-        pairs = [(la[r + k], lv) for r, lv in zip(b.rows.tolist(), b.level) if r + k in la]
-        if len(pairs) < min_overlap:
-            return None
-        x, y = np.array(pairs).T
-        x, y = x - x.mean(), y - y.mean()
-        norm = math.sqrt(float(x @ x) * float(y @ y))
-        if not norm > 0.0:
-            return None
-        scores.append(float(x @ y) / norm)
-    i = int(np.argmax(scores))
-    shift = float(i - max_rows)
-    if 0 < i < len(scores) - 1:
-        c0, c1, c2 = scores[i - 1], scores[i], scores[i + 1]
-        den = c0 - 2.0 * c1 + c2
-        if den < 0.0:
-            shift += 0.5 * (c0 - c2) / den
-    return shift
-
-
-def test_the_profile_lag_is_the_row_by_row_correlation_bit_for_bit():
-    """Profiles with gaps in their rows (rows left out by the cap weights), offset
-    spans, short overlaps and float32 levels: the same lag to the last bit, or None.
+def test_the_lag_overlap_is_the_row_by_row_lookup_bit_for_bit():
+    """Profiles with gaps in their rows (rows left out by the cap weights), offset spans,
+    no overlap and float32 levels: the same levels, in b's order and type, as looking
+    a's row r + k up row by row (the way the lag was measured before, kept as the
+    reference).
     """
     from vlc_decoder.core.spots import Spot
-    from vlc_decoder.core.tracker import profile_lag_rows
+    from vlc_decoder.core.tracker import lag_overlap
     rng = np.random.default_rng(11)
     for trial in range(200):
-        n_a, n_b = rng.integers(8, 60, 2)
+        n_a, n_b = rng.integers(1, 60, 2)
         rows_a = np.sort(rng.choice(np.arange(100, 100 + 2 * n_a), n_a, replace=False))
-        start = 100 + int(rng.integers(-10, 10))
+        start = 100 + int(rng.integers(-10, 130))
         rows_b = np.sort(rng.choice(np.arange(start, start + 2 * n_b), n_b, replace=False))
         dtype = np.float32 if trial % 3 == 0 else float
         a = Spot(0, 1, 0, 1, rows=rows_a, level=rng.random(n_a).astype(dtype),
                  weight=np.ones(n_a))
         b = Spot(0, 1, 0, 1, rows=rows_b, level=rng.random(n_b), weight=np.ones(n_b))
-        assert profile_lag_rows(a, b) == _lag_by_lookup(a, b)
+        looked_up = dict(zip(a.rows.tolist(), a.level))
+        for k in range(-3, 4):
+            pairs = [(looked_up[r + k], lv) for r, lv in zip(b.rows.tolist(), b.level)
+                     if r + k in looked_up]
+            want = np.array(pairs).T if pairs else np.zeros((2, 0))
+            x, y = lag_overlap(a, b, k)
+            assert x.dtype == y.dtype == (want.dtype if pairs else x.dtype)
+            assert np.array_equal(x, want[0]) and np.array_equal(y, want[1])
 
 
 def test_a_raw_pair_s_lag_is_measured_once_a_frame(monkeypatch):

@@ -210,6 +210,19 @@ MIN_LAG_OVERLAP_ROWS = 12
 PROFILE_LAG_MEMORY = 64
 
 
+def lag_overlap(a, b, k):
+    """The levels of profiles ``a`` and ``b`` on the rows where b's row r meets a's row
+    r + ``k``: (a's levels, b's levels), in b's row order, of one common float type.
+    """
+    # the rows of a profile are sorted and distinct: a's row r + k is found by bisection
+    a_rows, b_rows = np.asarray(a.rows), np.asarray(b.rows)
+    dtype = np.result_type(a.level, b.level)
+    shifted = b_rows + k
+    at = np.minimum(np.searchsorted(a_rows, shifted), len(a_rows) - 1)
+    hit = a_rows[at] == shifted
+    return np.asarray(a.level[at[hit]], dtype), np.asarray(b.level[hit], dtype)
+
+
 def profile_lag_rows(a, b, max_rows=MAX_PROFILE_LAG_ROWS):
     """Lag ``s`` (rows, fractional) with ``b.level(r) ≈ a.level(r + s)``: the normalised
     cross-correlation of the two profiles (0 off … 1 on, the chips, no envelope) at
@@ -217,18 +230,11 @@ def profile_lag_rows(a, b, max_rows=MAX_PROFILE_LAG_ROWS):
     the profiles overlap on fewer than :data:`MIN_LAG_OVERLAP_ROWS` rows at some lag or
     show no chips.
     """
-    # the rows of a profile are sorted and distinct: a's row r + k is found by bisection
-    a_rows, b_rows = np.asarray(a.rows), np.asarray(b.rows)
-    dtype = np.result_type(a.level, b.level)
     scores = []
     for k in range(-max_rows, max_rows + 1):
-        shifted = b_rows + k
-        at = np.minimum(np.searchsorted(a_rows, shifted), len(a_rows) - 1)
-        hit = a_rows[at] == shifted
-        if np.count_nonzero(hit) < MIN_LAG_OVERLAP_ROWS:
+        x, y = lag_overlap(a, b, k)
+        if len(x) < MIN_LAG_OVERLAP_ROWS:
             return None
-        x = np.asarray(a.level[at[hit]], dtype)
-        y = np.asarray(b.level[hit], dtype)
         x, y = x - x.mean(), y - y.mean()
         norm = math.sqrt(float(x @ x) * float(y @ y))
         if not norm > 0.0:
