@@ -48,12 +48,11 @@ def test_a_bag_without_camera_info_or_pairs_is_refused(tmp_path):
         receivers.bag_sequence(_bag(tmp_path / 'b', [10], [20]), 10)
 
 
-def test_paced_frames_start_one_period_apart(monkeypatch):
+def test_paced_frames_start_one_period_apart():
     starts = []
-    monkeypatch.setattr(receivers, 'PACE_S', 0.02)
-    receivers._run(range(5), lambda frame: starts.append(time.monotonic()), [], None)
+    receivers._run(range(5), lambda frame: starts.append(time.monotonic()), [], None,
+                   pace_s=0.02)
     assert np.all(np.diff(starts) > 0.019)
-    monkeypatch.setattr(receivers, 'PACE_S', 0.0)
     starts.clear()
     receivers._run(range(5), lambda frame: starts.append(time.monotonic()), [], None)
     assert starts[-1] - starts[0] < 0.05          # back to back (paced: >= 0.08 s)

@@ -161,22 +161,19 @@ def _fastest(function, min_of):
     return 1e3 * best
 
 
-#: seconds between frames with ``--pace`` (0: back to back); set by main
-PACE_S = 0.0
-
-
-def _run(frames, process, reported, profile, fastest=None):
+def _run(frames, process, reported, profile, fastest=None, pace_s=0.0):
     """``process(frame)`` for every frame: (core CPU ms, reported ms, _process CPU ms).
     ``fastest(frame)``, if given, is called before each frame (the min-of-k timing).
-    With :data:`PACE_S`, each frame starts ``PACE_S`` after the one before started.
+    With ``pace_s`` > 0 (``--pace``), each frame starts ``pace_s`` after the one before
+    started; 0: back to back.
     """
     whole = []
     due = time.monotonic()
     for frame in frames:
         if fastest is not None:
             fastest(frame)
-        if PACE_S:
-            due += PACE_S
+        if pace_s:
+            due += pace_s
             time.sleep(max(due - time.monotonic(), 0.0))
         start = time.thread_time()
         if profile is not None:
@@ -188,7 +185,8 @@ def _run(frames, process, reported, profile, fastest=None):
     return list(reported)[-len(frames):], whole
 
 
-def run_decoder(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=None):
+def run_decoder(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=None,
+                pace_s=0.0):
     """One fresh decoder node over the frames: (cloud bytes list, core CPU ms, node-reported
     wall ms, _process CPU ms), per frame. ``min_of`` > 0: also the core's least CPU time
     of that many runs on copies of the tracker as the frame found it, into ``fastest_ms``.
@@ -214,13 +212,14 @@ def run_decoder(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=Non
                                    min_of))
 
     reported, whole = _run(frames, lambda f: node._process(*f), node.proc_ms, profile,
-                           fastest if min_of else None)
+                           fastest if min_of else None, pace_s)
     clouds = node.pub_lamps.clouds
     node.destroy_node()
     return clouds, core, reported, whole
 
 
-def run_spot(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=None):
+def run_spot(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=None,
+             pace_s=0.0):
     """One fresh spot locator node over the frames: as :func:`run_decoder`."""
     node = _spot_node()
     for side, info in enumerate(infos):
@@ -239,7 +238,7 @@ def run_spot(infos, frames, speed_mps, profile=None, min_of=0, fastest_ms=None):
         fastest_ms.append(_fastest(lambda: locator_process(left, right, speed_mps), min_of))
 
     reported, whole = _run(frames, lambda f: node._process(f[1], f[2]), node._proc_ms,
-                           profile, fastest if min_of else None)
+                           profile, fastest if min_of else None, pace_s)
     clouds = node.pub_pairs.clouds
     node.destroy_node()
     return clouds, core, reported, whole
@@ -300,15 +299,15 @@ def main(argv=None):
     repeats = 1 if args.hash_only else args.repeats
     totals = {n: ([], [], [], []) for n in nodes}
     profiles = {n: cProfile.Profile() for n in nodes} if args.profile else {}
-    global PACE_S
+    pace_s = 0.0
     if args.pace:
         from vlc_evaluation.benchmarks.spot_locator import graph_timing
-        PACE_S = 1.0 / graph_timing()['fps']
+        pace_s = 1.0 / graph_timing()['fps']
     sequences = ([(pathlib.Path(args.bag).name, None)] if args.bag
                  else [(f'{name}{" raw" if raw else ""}', (speed_kmh, raw))
                        for raw in (False, True) for name, speed_kmh in SEQUENCES])
     print(f'{args.frames} frames per sequence, {repeats} pass(es), '
-          + (f'one frame every {1e3 * PACE_S:.1f} ms' if PACE_S else 'back to back')
+          + (f'one frame every {1e3 * pace_s:.1f} ms' if pace_s else 'back to back')
           + '; ms per stereo pair as '
           'median p99 max: core = CPU time of the core (tracker.process, locator.process), '
           'reported = what the node reports in its diagnostics (wall time of the same '
@@ -324,7 +323,7 @@ def main(argv=None):
             for _ in range(repeats):
                 clouds, c, r, w = RUNNERS[node](
                     infos, frames, speed, profiles.get(node),
-                    0 if args.hash_only else args.min_of, fastest)
+                    0 if args.hash_only else args.min_of, fastest, pace_s)
                 digests.add(_digest(clouds))
                 core += c
                 reported += r
