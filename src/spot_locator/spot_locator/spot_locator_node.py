@@ -126,6 +126,9 @@ NODE_PARAMETERS = (
     ('min_area_px', 6, _desc('Smallest spot, px.', 1, 1000000, integer=True)),
     ('max_spots', 16, _desc('Largest number of spots per image.', 1, 1000, integer=True)),
     ('reject_border_spots', True, _desc('Drop spots that touch the image border.')),
+    ('pair_cut_spots', True, _desc('Chord method: pair a spot cut by the image\'s side '
+                                   'border with its lamp\'s whole spot in the other image, '
+                                   'the disparity from the uncut chord ends (flag bit 9).')),
     ('max_row_diff_px', 3.0, _desc('Matching: allowed difference of the spots\' centre rows, '
                                    'px.', 0.0, 100.0)),
     ('min_row_overlap', 0.5, _desc('Matching: the shorter spot\'s row span must overlap the '
@@ -180,6 +183,7 @@ class SpotLocatorNodeConfig:
     min_area_px: int
     max_spots: int
     reject_border_spots: bool
+    pair_cut_spots: bool
     max_row_diff_px: float
     min_row_overlap: float
     min_disparity_px: float
@@ -214,7 +218,8 @@ class SpotLocatorNodeConfig:
             min_blur_px=self.min_blur_px, train_velocity_cam_mps=tuple(velocity_cam),
             row_time_s=self.row_time_s, exposure_s=self.exposure_s,
             trigger_skew_s=self.trigger_skew_s,
-            reject_border_spots=self.reject_border_spots, vignetting=self.vignetting,
+            reject_border_spots=self.reject_border_spots,
+            pair_cut_spots=self.pair_cut_spots, vignetting=self.vignetting,
             detect=DetectConfig(threshold_snr=self.threshold_snr,
                                 min_threshold_dn=self.min_threshold_dn,
                                 closing_rows=self.closing_rows, min_area_px=self.min_area_px,
@@ -247,7 +252,8 @@ class SpotLocatorNode(Node):
                                       cfg.time_base_confirm_count)
         self._speed = (cfg.assumed_speed_mps, -np.inf)
         self._stats = dict(frames=0, pairs=0, bad_image=0, no_camera_info=0,
-                           size_mismatch=0, failed=0, unmatched=0, border=0)
+                           size_mismatch=0, failed=0, unmatched=0, border=0,
+                           edge_pairs=0)
         self._proc_ms = deque(maxlen=200)
         self._warnings = ThrottledWarnings(self.get_logger(), _WARN_PERIOD_S)
         # first calls into OpenCV/LAPACK/scipy/scikit-image are slow: pay them now, not
@@ -381,6 +387,7 @@ class SpotLocatorNode(Node):
         stats['pairs'] += len(result.pairs)
         stats['unmatched'] += result.unmatched_left + result.unmatched_right
         stats['border'] += result.rejected_border
+        stats['edge_pairs'] += result.edge_pairs
         stats['failed'] += result.failed
         self._proc_ms.append(1e3 * result.processing_s)
 

@@ -157,8 +157,88 @@ def test_spots_cut_by_the_image_border_are_rejected():
     shift = int(round(_truth_uv(truth[0])[0][0]))
     left = np.roll(left, -shift, axis=1)
     right = np.roll(right, -shift, axis=1)
-    result = SpotLocator(_config()).process(left, right)
+    result = SpotLocator(_config(pair_cut_spots=False)).process(left, right)
     assert result.pairs == [] and result.rejected_border >= 2
+    # with cut spots paired, the wrapped half at the right border and the right spot
+    # rolled whole to the right edge are such a pair; nothing else is
+    result = SpotLocator(_config()).process(left, right)
+    assert result.rejected_border >= 2
+    assert all(p.flags & loc_mod.FLAG_EDGE_DISPARITY for p in result.pairs)
+
+
+def _cut_pair_case(seed, side):
+    """A lamp 6 m ahead with one spot cut by the side border: both images cropped at
+    the same columns (the right ones keep K; the left ones move cx), so that the left
+    spot loses its right part (side 0) or the right spot its left part (side 1).
+    """
+    (left, right), truth = _render_pair(np.random.default_rng(seed), [6.0])
+    uv_l, uv_r = _truth_uv(truth[0])
+    if side == 0:
+        c0, c1 = 0, int(uv_l[0]) + 2          # 2-3 px of the left spot past its centre
+    else:
+        c0, c1 = int(uv_r[0]) - 2, SHAPE[1]
+    g = StereoGeometry(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] - c0, cy=K[1, 2],
+                       baseline_m=RIG.baseline_m, width=c1 - c0, height=SHAPE[0])
+    shift = np.array([c0, 0.0])
+    return left[:, c0:c1], right[:, c0:c1], g, uv_l - shift, uv_r - shift
+
+
+@pytest.mark.parametrize('side', [0, 1])
+def test_a_spot_cut_by_the_side_border_is_paired_through_its_chord_ends(side):
+    """The whole spot's centre, and the disparity from the chord ends both images show:
+    within its stated σ of the truth, that σ 0.05-0.3 px; without the option no pair.
+    """
+    errors = []
+    for seed in range(4):
+        left, right, g, uv_l, uv_r = _cut_pair_case(30 + seed, side)
+        result = SpotLocator(_config(), g).process(left, right)
+        assert result.rejected_border == 1 and result.edge_pairs == 1
+        (p,) = result.pairs
+        assert p.flags & loc_mod.FLAG_EDGE_DISPARITY and p.flags & loc_mod.FLAG_CUT_BY_BORDER
+        whole, truth_whole = (p.uv_right, uv_r) if side == 0 else (p.uv_left, uv_l)
+        assert np.hypot(*(whole - truth_whole)) < 0.15
+        assert 0.05 <= p.sigma_disparity < 0.3
+        errors.append((p.disparity - (uv_l[0] - uv_r[0])) / p.sigma_disparity)
+        # the cut side's σu carries the disparity's σ
+        cut_sigma, whole_sigma = ((p.sigma_left, p.sigma_right) if side == 0
+                                  else (p.sigma_right, p.sigma_left))
+        assert cut_sigma[0] > 2.0 * whole_sigma[0] and p.sigma_disparity >= cut_sigma[0]
+        assert SpotLocator(_config(pair_cut_spots=False), g).process(left, right).pairs == []
+    assert np.max(np.abs(errors)) < 3.0, errors
+
+
+def test_a_spot_cut_on_the_side_that_cannot_show_its_partner_is_not_paired():
+    """A left spot cut by the left border (or a right one by the right border) lies
+    where the other image's spot is cut as well, or out of it: no pair, and a whole
+    spot next to it is not taken for its partner.
+    """
+    (left, right), truth = _render_pair(np.random.default_rng(41), [6.0])
+    uv_l, uv_r = _truth_uv(truth[0])
+    c0 = int(uv_l[0]) - 2                      # the left spot loses its left part
+    g = StereoGeometry(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] - c0, cy=K[1, 2],
+                       baseline_m=RIG.baseline_m, width=SHAPE[1] - c0, height=SHAPE[0])
+    result = SpotLocator(_config(), g).process(left[:, c0:], right[:, c0:])
+    assert result.pairs == [] and result.edge_pairs == 0
+
+
+def test_chord_ends_lie_one_disparity_apart_and_refuse_a_bad_side():
+    from spot_locator.core.centres import chord_ends
+    from spot_locator.core.detection import detect_spots
+    (left, right), truth = _render_pair(np.random.default_rng(42), [4.0])
+    uv_l, uv_r = _truth_uv(truth[0])
+    ends = []
+    for image in (left, right):
+        (region,) = detect_spots(image)
+        rows, u = chord_ends(region.roi, region.support, 'lo', region.noise_sigma)
+        ends.append(dict(zip(rows + region.v0, u + region.u0)))
+    common = sorted(set(ends[0]) & set(ends[1]))
+    assert len(common) >= 8
+    d = np.array([ends[0][r] - ends[1][r] for r in common])
+    # the ends are rim points, nearer than the centre here (the disc is seen at 70-80°
+    # off its normal): within 0.5 px of its disparity, one value for all rows to 0.2 px
+    assert abs(d.mean() - (uv_l[0] - uv_r[0])) < 0.5 and d.std() < 0.2
+    with pytest.raises(ValueError, match='end'):
+        chord_ends(region.roi, region.support, 'left')
 
 
 def test_the_chord_fit_keeps_a_spot_cut_by_the_bottom_edge():

@@ -14,7 +14,12 @@ import pytest
 from sensor_msgs.msg import CameraInfo
 
 from spot_locator import conversions as spot_conversions
-from spot_locator.core.locator import FLAG_RECTIFIED, LocatorConfig, SpotLocator
+from spot_locator.core.locator import (
+    FLAG_EDGE_DISPARITY,
+    FLAG_RECTIFIED,
+    LocatorConfig,
+    SpotLocator,
+)
 from train_localizer.conversions import CameraInfoIntrinsics
 from train_localizer.core.fix import RigGeometry, triangulate
 from train_localizer.core.join import JoinConfig, join_frame
@@ -209,3 +214,51 @@ def test_repeated_camera_info_is_not_derived_again(lamp_map, monkeypatch):
         for index, info in enumerate(ideal):
             intrinsics.update(index, _msg(info))
     assert len(calls) > 2 and not np.array_equal(geometry.R_base_cam, turned)
+
+
+def test_a_raw_spot_cut_by_the_side_border_is_paired_with_its_whole_spot(lamp_map):
+    """Raw images cropped on the right (camera_info keeps K, D, R, P, width smaller) so
+    that a lamp's left spot loses its right part: the pair from its chord ends (mapped
+    through each camera's lens) agrees with the whole pair of the uncropped frame, the
+    whole spot's centre to 0.2 px and the disparity within 3σ of that pair's.
+    """
+    config = RendererConfig(optics_truth=OpticsTruth.example(), **TIMING)
+    rig = config.rig()
+
+    def locate(infos, left, right):
+        locator = SpotLocator(LocatorConfig(
+            normal_cam=tuple(rig.R_base_cam.T @ np.array([0.0, -1.0, 0.0])),
+            train_velocity_cam_mps=tuple(rig.R_base_cam.T @ np.array([-1.0, 0.0, 0.0])),
+            row_time_s=config.row_time_s, exposure_s=config.exposure_s),
+            spot_conversions.stereo_geometry(*infos))
+        return locator.process(left, right)
+
+    checked = 0
+    for start in STARTS_M:
+        trajectory = Trajectory(MotionProfile('stationary', start_chainage_m=start),
+                                Vibration(VibrationConfig(enabled=False), seed=1))
+        renderer = StereoRenderer(config, lamp_map, trajectory, seed=3)
+        msgs = [_msg(info) for info in renderer.camera_info_dicts()]
+        frame = renderer.render(0)
+        full = locate(msgs, frame.left, frame.right).pairs
+        for truth in frame.truth:
+            width = int(truth.uv_left[0]) + 2
+            if not (truth.in_left and truth.in_right) or truth.uv_right[0] > width - 15:
+                continue                     # the right spot would be cut as well
+            cropped = []
+            for m in msgs:
+                c = CameraInfo(width=width, height=m.height,
+                               distortion_model=m.distortion_model)
+                c.d, c.k, c.r, c.p = list(m.d), list(m.k), list(m.r), list(m.p)
+                cropped.append(c)
+            result = locate(cropped, frame.left[:, :width].copy(),
+                            frame.right[:, :width].copy())
+            edge = [p for p in result.pairs if p.flags & FLAG_EDGE_DISPARITY]
+            assert len(edge) == 1 and result.edge_pairs == 1
+            p = edge[0]
+            q = min(full, key=lambda q: np.hypot(*(q.uv_right - p.uv_right)))
+            assert np.hypot(*(p.uv_right - q.uv_right)) < 0.2
+            assert abs(p.disparity - q.disparity) < 3.0 * p.sigma_disparity
+            assert p.flags & FLAG_RECTIFIED
+            checked += 1
+    assert checked >= 3

@@ -444,6 +444,60 @@ def chord_fit(roi, support, noise_sigma=1.0, config=None, saturated=None, thresh
     return second if second.info.get('v_from_width') else _fit_rows(own, noise_sigma, cfg, 1)
 
 
+def chord_ends(roi, support, end, noise_sigma=1.0, saturated=None, min_snr=10.0,
+               min_level_fraction=0.5, min_inside_px=2.5):
+    """Sub-pixel end of each bright row's chord on one side of a spot (ROI pixels).
+
+    Parameters
+    ----------
+    roi : (h, w) float, background-subtracted.
+    support : (h, w) bool, the spot's pixels.
+    end : 'lo' (the end toward column 0) or 'hi'.
+    noise_sigma : image noise (DN, 1σ).
+    saturated : (h, w) bool or None; a row holding a clipped pixel is left out (its
+        level, hence its half level, is unknown).
+    min_snr, min_level_fraction : a row is used when its level (its largest supported
+        pixel) exceeds ``min_snr`` noise σ and ``min_level_fraction`` of the brightest
+        row's: the rows of a bright stripe, not the dark ones between.
+    min_inside_px : the row's pixels at half its level must reach this far beyond the
+        end (px): a chord shorter than that, or a part of it too short to reach the
+        plateau (a spot cut by the image border), has no level to halve.
+
+    Returns
+    -------
+    (rows (n,) int, u (n,) float): the ROI row and the column where the row first
+    reaches half its level from ``end``, linear between the two pixels around it. A
+    symmetric blur moves that point by nothing, so one lamp's chord ends in the two
+    images of a rectified pair lie one disparity apart, row by row (the two images'
+    row r is one epipolar plane, which meets the disc's rim in the same two points).
+    """
+    if end not in ('lo', 'hi'):
+        raise ValueError("end must be 'lo' or 'hi'")
+    roi = np.asarray(roi, float)
+    level = np.where(support, roi, -np.inf).max(axis=1)
+    has = np.isfinite(level)
+    if not has.any():
+        return np.zeros(0, int), np.zeros(0)
+    keep = has & (level > min_snr * noise_sigma) & (level > min_level_fraction
+                                                     * level[has].max())
+    if saturated is not None:
+        keep &= ~np.asarray(saturated, bool).any(axis=1)
+    rows = np.nonzero(keep)[0]
+    prof = roi[rows] if end == 'lo' else roi[rows, ::-1]
+    half = 0.5 * level[rows]
+    above = prof >= half[:, None]
+    first = above.argmax(axis=1)
+    last = prof.shape[1] - 1 - above[:, ::-1].argmax(axis=1)
+    i = np.maximum(first, 1)
+    k = np.arange(len(rows))
+    below, over = prof[k, i - 1], prof[k, i]
+    x = (i - 1) + (half - below) / np.where(over > below, over - below, np.inf)
+    ok = (first > 0) & (last - x >= min_inside_px)
+    if end == 'hi':
+        x = roi.shape[1] - 1 - x
+    return rows[ok], x[ok]
+
+
 def _sketch_ellipse(rows, noise_sigma, cfg):
     """First-pass ellipse through complete rows: ``(vbar, midpoint poly, half-chord² poly)``.
 

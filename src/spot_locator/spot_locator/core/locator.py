@@ -35,8 +35,18 @@ FLAG_ECC_NOMINAL = 1 << 3       # eccentricity removed with the nominal disc nor
 FLAG_ECC_CONIC = 1 << 4         # ... with the normal measured from the ellipses
 FLAG_V_FROM_WIDTH = 1 << 5      # chord fit found the centre row from the chord widths
 FLAG_ROLLING_SHUTTER = 1 << 6   # rolling-shutter model of the moving lamp applied
-FLAG_CUT_BY_BORDER = 1 << 7     # a spot of the pair is cut by the top or bottom image edge
+FLAG_CUT_BY_BORDER = 1 << 7     # a spot of the pair is cut by an image edge (the side
+                                # edge: FLAG_EDGE_DISPARITY too)
 FLAG_RECTIFIED = 1 << 8         # centres measured in raw images, mapped through camera_info
+FLAG_EDGE_DISPARITY = 1 << 9    # one spot cut by the side border: the disparity from the
+                                # chord ends both images show (SpotLocator._cut_pairs)
+
+#: a pair from a spot cut by the side border needs this many rows with both chord ends
+MIN_EDGE_ROWS = 4
+#: 1σ floor of such a pair's disparity, px, and the share of its disc-plane correction
+#: (chord end → disc centre) added to its σ for the lamp normal's error
+EDGE_DISPARITY_FLOOR_PX = 0.05
+EDGE_CORRECTION_SHARE = 0.5
 
 
 @dataclass
@@ -94,6 +104,9 @@ class LocatorConfig:
     row_time_s, exposure_s: rolling-shutter timing.
     reject_border_spots: drop spots cut by the image border (the chord fit keeps spots cut
         by the top or bottom edge: their rows are complete; they are flagged).
+    pair_cut_spots: a spot cut by the image's side border (dropped as a spot) is still
+        paired with the whole spot of its lamp in the other image, the disparity taken
+        from the uncut chord ends (see :meth:`SpotLocator._cut_pairs`); chord method only.
     rolling_shutter_model: when the train moves, replace the static eccentricity offset by
         the offset predicted for the moving lamp (its image moves and grows while the spot
         is read out row by row), see :func:`.eccentricity.correct_pair_moving`.
@@ -119,6 +132,7 @@ class LocatorConfig:
     row_time_s: float = 30e-6
     exposure_s: float = 50e-6
     reject_border_spots: bool = True
+    pair_cut_spots: bool = True
     rolling_shutter_model: bool = True
     vignetting: str = 'cos4'
     contour_level: float = 0.5
@@ -181,6 +195,7 @@ class FrameResult:
     rejected_border: int
     failed: int
     processing_s: float
+    edge_pairs: int = 0
 
 
 @dataclass
@@ -225,8 +240,10 @@ class SpotLocator:
         if np.shape(left) != np.shape(right):
             raise ValueError(f'left {np.shape(left)} and right {np.shape(right)} differ')
         spots = []
+        cut_regions = ([], [])
         rejected = failed = 0
-        for image in (left, right):
+        keep_cut = self.cfg.pair_cut_spots and self.cfg.method == 'chord'
+        for image, side_cut in zip((left, right), cut_regions):
             found = []
             for region in detect_spots(image, self.cfg.detect):
                 # The chord fit needs complete rows only: a spot cut by the top or bottom
@@ -236,6 +253,8 @@ class SpotLocator:
                        else region.touches_border)
                 if cut and self.cfg.reject_border_spots:
                     rejected += 1
+                    if keep_cut and region.cut_columns:
+                        side_cut.append(region)
                     continue
                 if self.cfg.vignetting == 'cos4':
                     region.roi = self._flat_field(region)
@@ -265,8 +284,13 @@ class SpotLocator:
                 failed += 1
             else:
                 pairs.append(pair)
+        edge_pairs = 0
+        if cut_regions[0] or cut_regions[1]:
+            found, um_l, um_r = self._cut_pairs(spots, (um_l, um_r), cut_regions, speed_mps)
+            pairs += found
+            edge_pairs = len(found)
         return FrameResult(pairs, len(sl), len(sr), len(um_l), len(um_r), rejected, failed,
-                           time.perf_counter() - t_start)
+                           time.perf_counter() - t_start, edge_pairs)
 
     def warm_up(self):
         """Run every per-frame code path once on a synthetic striped stereo pair.
@@ -427,16 +451,152 @@ class SpotLocator:
         w = db.image_velocity(P - np.array([g.baseline_m, 0.0, 0.0]), vel, g.fx, g.fy)
         return w * dt
 
-    def _pair(self, a, b, speed_mps):
+    def _cut_pairs(self, spots, unmatched, cut_regions, speed_mps):
+        """Pairs of a spot cut by one image's side border with its lamp's whole spot.
+
+        Whole: touching no image edge (a near lamp cut by the bottom edge has a centre
+        extrapolated from part of its rows, not one to carry a pair alone).
+
+        A lamp entering or leaving the view at the far edge is cut by the left image's
+        right border while whole in the right image (the left image shows it one
+        disparity further right); a lamp at the near left edge is cut by the right
+        image's left border while whole in the left one. Such a spot has no centre of
+        its own, but the rows it shows still have their uncut chord end: on the rows
+        both images show, the two ends lie one disparity apart, exactly, as the two
+        images' row is one epipolar plane meeting the disc's rim in the same point
+        (:func:`.centres.chord_ends`; raw images: the ends rectified, the whole spot's
+        interpolated to the cut one's rectified rows). The end is a rim point, not the
+        disc centre: on the disc's plane 1/Z ∝ n·(x, y, 1), so each row's end disparity
+        is scaled by n·x̃_centre / n·x̃_end (the whole spot's centre and end, nominal lamp
+        normal), about 0.1 px for a lamp 9.5 m ahead seen at 80° off its normal; half
+        of that correction is added to the disparity's σ (the lamp normal's own error)
+        with a 0.05 px floor, and the rows' scatter over √n. The pair is the whole spot's
+        centre and that centre one disparity over; the cut side's σu carries the
+        disparity's σ, so the triangulated lamp is known across the whole camera's line
+        of sight and loosely along it. Returns (pairs, unmatched left, unmatched right).
+        """
+        g, cfg = self.geom, self.cfg
+        left_out, right_out = list(unmatched[0]), list(unmatched[1])
+        free = (left_out, right_out)
+        ends = {}
+        pairs = []
+        for side, regions in enumerate(cut_regions):
+            other = 1 - side
+            end = 'lo' if side == 0 else 'hi'
+            for region in regions:
+                columns = np.flatnonzero(region.support.any(axis=0)) + region.u0
+                at_left, at_right = columns[0] <= 0, columns[-1] >= g.width - 1
+                # only these two show the lamp's whole spot in the other image
+                if not ((at_right and not at_left) if side == 0 else
+                        (at_left and not at_right)):
+                    continue
+                if cfg.vignetting == 'cos4':
+                    region.roi = self._flat_field(region)
+                rows, u = cm.chord_ends(region.roi, region.support, end, region.noise_sigma,
+                                        region.saturated)
+                if len(rows) < MIN_EDGE_ROWS:
+                    continue
+                cut_pts = self._rectify(side, u + region.u0, rows + region.v0)
+                best = None
+                for j in free[other]:
+                    s = spots[other][j]
+                    # whole: its own centre is measured on every row (a near lamp cut by
+                    # the bottom edge has an extrapolated one)
+                    if s.region.touches_border or s.est.info.get('cut'):
+                        continue
+                    if (other, j) not in ends:
+                        r_w, u_w = cm.chord_ends(s.region.roi, s.region.support, end,
+                                                 s.region.noise_sigma, s.region.saturated)
+                        ends[other, j] = self._rectify(other, u_w + s.region.u0,
+                                                       r_w + s.region.v0)
+                    found = self._edge_disparity(cut_pts, ends[other, j], self._centre(s),
+                                                 side)
+                    if found is not None and (best is None or found[2] > best[2]):
+                        best = found + (j,)
+                if best is None:
+                    continue
+                d, sigma_d, _, j = best
+                if not cfg.match.min_disparity_px <= d <= cfg.match.max_disparity_px:
+                    continue
+                whole = spots[other][j]
+                uv_w = np.array(self._centre(whole), float)
+                sigma_w = np.array([whole.est.sigma_u, whole.est.sigma_v])
+                uv_c = uv_w + np.array([d if side == 0 else -d, 0.0])
+                sigma_c = np.array([np.hypot(sigma_w[0], sigma_d), sigma_w[1]])
+                raw = (uv_c if self.models is None
+                       else self.models[side].unrectify_points(uv_c)[0])
+                stand_in = _Spot(region, cm.CentreEstimate(float(raw[0]), float(raw[1]),
+                                                           float(sigma_c[0]),
+                                                           float(sigma_c[1]), True),
+                                 float('nan'), float(raw[0]), float(raw[1]),
+                                 float(uv_c[0]), float(uv_c[1]))
+                a, b = (stand_in, whole) if side == 0 else (whole, stand_in)
+                centres = ((uv_c, uv_w, sigma_c, sigma_w) if side == 0
+                           else (uv_w, uv_c, sigma_w, sigma_c))
+                pair = self._pair(a, b, speed_mps, centres)
+                if pair is not None:
+                    free[other].remove(j)
+                    pairs.append(pair)
+        return pairs, left_out, right_out
+
+    def _rectify(self, camera, u, v):
+        """(n, 2) rectified points of raw pixels ``u``, ``v`` of one camera."""
+        pts = np.column_stack([np.asarray(u, float), np.asarray(v, float)])
+        if self.models is None or len(pts) == 0:
+            return pts
+        return self.models[camera].rectify_points(pts)
+
+    def _edge_disparity(self, cut_pts, whole_pts, whole_centre, side):
+        """(disparity of the disc centre, its 1σ, rows used) from rectified chord ends
+        of the cut spot (image ``side``) and the whole one; None when fewer than
+        ``MIN_EDGE_ROWS`` rows have both (see :meth:`_cut_pairs`).
+        """
+        if len(whole_pts) < 2:
+            return None
+        order = np.argsort(whole_pts[:, 1])
+        V_w, U_w = whole_pts[order, 1], whole_pts[order, 0]
+        V_c, U_c = cut_pts[:, 1], cut_pts[:, 0]
+        k = np.searchsorted(V_w, V_c)
+        inside = (k > 0) & (k < len(V_w))
+        kk = np.clip(k, 1, len(V_w) - 1)
+        # bracketed by whole-spot ends at most two rows apart (no dark stripe between)
+        inside &= V_w[kk] - V_w[kk - 1] <= 2.01
+        if np.count_nonzero(inside) < MIN_EDGE_ROWS:
+            return None
+        V_c, U_c = V_c[inside], U_c[inside]
+        U_at = np.interp(V_c, V_w, U_w)
+        d_end = U_c - U_at if side == 0 else U_at - U_c
+        # the disc's plane: 1/Z ∝ n·x̃ in the whole camera's rectified frame
+        g, n = self.geom, self.normal_cam
+        def n_dot(u, v):
+            return n[0] * (u - g.cx) / g.fx + n[1] * (v - g.cy) / g.fy + n[2]
+        at_centre, at_end = n_dot(*whole_centre), n_dot(U_at, V_c)
+        if abs(at_centre) < 0.02 or np.min(np.abs(at_end)) < 0.02:
+            return None                            # the disc seen edge on
+        d_centre = d_end * at_centre / at_end
+        d = float(d_centre.mean())
+        scatter = float(d_centre.std()) / np.sqrt(len(d_centre))
+        model = (EDGE_CORRECTION_SHARE * abs(float((d_centre - d_end).mean()))
+                 + EDGE_DISPARITY_FLOOR_PX)
+        return d, float(np.hypot(scatter, model)), len(d_centre)
+
+    def _pair(self, a, b, speed_mps, centres=None):
+        """One lamp's SpotPair from its left and right spots, or None.
+
+        ``centres`` = (uv_l, uv_r, σ_l, σ_r), rectified, replaces the centres measured
+        on the two spots (a pair from a spot cut by the side border, :meth:`_cut_pairs`).
+        """
         g, cfg, models = self.geom, self.cfg, self.models
         flags = METHODS.index(cfg.method)
+        if centres is not None:
+            flags |= FLAG_EDGE_DISPARITY
         blur_px = 0.0
         # lamp velocity relative to the camera, in the (rectified) frame of the centres
         vel = np.asarray(cfg.train_velocity_cam_mps, float) * speed_mps
         if models is not None:
             vel = self._R_rect @ vel
             flags |= FLAG_RECTIFIED
-        if cfg.wiener and speed_mps > 0.0:
+        if cfg.wiener and speed_mps > 0.0 and centres is None:
             P = ecc.triangulate(self._centre(a), self._centre(b), g.fx, g.fy, g.cx, g.cy,
                                 g.baseline_m)
             if np.isfinite(P).all() and P[2] > 0:
@@ -453,7 +613,11 @@ class SpotLocator:
         shift_r = self._right_shift(a, b, vel, speed_mps)
         sl = np.array([a.est.sigma_u, a.est.sigma_v])
         sr = np.array([b.est.sigma_u, b.est.sigma_v])
-        if models is None:
+        if centres is not None:
+            uv_l, uv_r, sl, sr = (np.array(c, float) for c in centres)
+            if shift_r is not None:
+                uv_r = uv_r - shift_r
+        elif models is None:
             uv_l, uv_r = np.array([a.u, a.v]), np.array([b.u, b.v])
             if cfg.method == 'chord':
                 uv_l, uv_r, sl, sr = _common_centre_row(a, b)

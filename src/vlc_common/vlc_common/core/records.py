@@ -18,7 +18,7 @@ field                                  type     offset  meaning
 ``sigma_u_right``, ``sigma_v_right``   float32  56, 60  1σ of u_right, v_right, px
 ``sigma_disparity``                    float32  64      1σ of the disparity, px
 ``circularity_left``,                  float32  68, 72  α = 4πS/L² (paper eq. 10) of each spot
-``circularity_right``
+``circularity_right``                                   (NaN: the cut spot of a bit-9 pair)
 ``ecc_du_left``, ``ecc_dv_left``       float32  76, 80  eccentricity offset removed, left, px
 ``ecc_du_right``, ``ecc_dv_right``     float32  84, 88  same, right, px
 ``blur_px``                            float32  92      predicted exposure blur length, px
@@ -30,8 +30,11 @@ field                                  type     offset  meaning
                                                         the nominal normal; 4 … with the
                                                         measured normal; 5 centre row from
                                                         the chord widths; 6 rolling-shutter
-                                                        model applied; 7 a spot cut by the
-                                                        top or bottom image edge
+                                                        model applied; 7 a spot cut by an
+                                                        image edge; 8 raw centres mapped
+                                                        through camera_info; 9 one spot cut
+                                                        by the side edge, the disparity from
+                                                        the chord ends (its sigma 0.05-0.3 px)
 =====================================  =======  ======  =====================================
 
 ``vlc/lamps`` (sensor_msgs/PointCloud2, one point per lamp seen in the frame, header =
