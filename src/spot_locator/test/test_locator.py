@@ -221,6 +221,27 @@ def test_a_spot_cut_on_the_side_that_cannot_show_its_partner_is_not_paired():
     assert result.pairs == [] and result.edge_pairs == 0
 
 
+@pytest.mark.parametrize('seed', [50, 51, 53, 54])
+def test_a_spot_cut_by_the_bottom_edge_is_no_whole_partner(seed):
+    """The near lamp leaving the view at the bottom left corner: the right spot cut by
+    the left border, both cut by the bottom edge at their centre row, their last rows
+    before the edge in a dark stripe (so the bright component does not reach the edge).
+    The left spot's centre row is only the middle of the rows it shows: it is no whole
+    partner (taken for one, these frames gave pairs 9-13 px off at a stated σv of
+    0.6-1 px; the graph's 20 km/h run one 36 px off at 1.3 px).
+    """
+    left, right, g, uv_l, uv_r = _cut_pair_case(seed, 1)
+    cut = int(uv_l[1])
+    left, right = left[:cut].copy(), right[:cut].copy()
+    for image in (left, right):
+        image[-4:] = image[:4]                 # a dark stripe at the edge: background
+    g = StereoGeometry(fx=g.fx, fy=g.fy, cx=g.cx, cy=g.cy, baseline_m=g.baseline_m,
+                       width=g.width, height=cut)
+    result = SpotLocator(_config(), g).process(left, right)
+    assert result.rejected_border == 1
+    assert result.edge_pairs == 0 and result.pairs == []
+
+
 def test_chord_ends_lie_one_disparity_apart_and_refuse_a_bad_side():
     from spot_locator.core.centres import chord_ends
     from spot_locator.core.detection import detect_spots

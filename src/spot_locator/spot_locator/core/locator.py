@@ -454,8 +454,7 @@ class SpotLocator:
     def _cut_pairs(self, spots, unmatched, cut_regions, speed_mps):
         """Pairs of a spot cut by one image's side border with its lamp's whole spot.
 
-        Whole: touching no image edge (a near lamp cut by the bottom edge has a centre
-        extrapolated from part of its rows, not one to carry a pair alone).
+        Whole: its centre measured, not extrapolated (:meth:`_whole`).
 
         A lamp entering or leaving the view at the far edge is cut by the left image's
         right border while whole in the right image (the left image shows it one
@@ -500,9 +499,7 @@ class SpotLocator:
                 best = None
                 for j in free[other]:
                     s = spots[other][j]
-                    # whole: its own centre is measured on every row (a near lamp cut by
-                    # the bottom edge has an extrapolated one)
-                    if s.region.touches_border or s.est.info.get('cut'):
+                    if not self._whole(s):
                         continue
                     if (other, j) not in ends:
                         r_w, u_w = cm.chord_ends(s.region.roi, s.region.support, end,
@@ -538,6 +535,30 @@ class SpotLocator:
                     free[other].remove(j)
                     pairs.append(pair)
         return pairs, left_out, right_out
+
+    def _whole(self, spot):
+        """Whether a spot's centre is measured, not extrapolated: it touches no image
+        edge, its centre row is the vertex of its chord widths (``v_from_width``; a spot
+        whose lower or upper part is missing has no vertex among its rows and a centre
+        row that is only the middle of the rows it shows) and the ellipse those widths
+        draw lies inside the image's rows. A near lamp leaving the view at the bottom
+        left corner is cut by the bottom edge in both images, its lower stripes in the
+        dark: the bright component can end rows above the edge, and its centre then
+        reads tens of pixels off with a σ of about a pixel.
+        """
+        region, info = spot.region, spot.est.info
+        if region.touches_border or info.get('cut') or not info.get('v_from_width'):
+            return False
+        quad = info.get('quad')
+        if quad is None:
+            return False
+        q0, q1, q2 = (float(c) for c in quad)
+        disc = q1 * q1 - 4.0 * q2 * q0
+        if not (q2 < 0.0 and disc > 0.0):
+            return False
+        centre = region.v0 + float(info['vbar']) - q1 / (2.0 * q2)
+        semi = np.sqrt(disc) / (-2.0 * q2)
+        return centre - semi >= -0.5 and centre + semi <= self.geom.height - 0.5
 
     def _rectify(self, camera, u, v):
         """(n, 2) rectified points of raw pixels ``u``, ``v`` of one camera."""
