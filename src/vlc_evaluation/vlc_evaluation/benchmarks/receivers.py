@@ -164,8 +164,9 @@ def _fastest(function, min_of):
 def _run(frames, process, reported, profile, fastest=None, pace_s=0.0):
     """``process(frame)`` for every frame: (core CPU ms, reported ms, _process CPU ms).
     ``fastest(frame)``, if given, is called before each frame (the min-of-k timing).
-    With ``pace_s`` > 0 (``--pace``), each frame starts ``pace_s`` after the one before
-    started; 0: back to back.
+    With ``pace_s`` > 0 (``--pace``), frame k is due ``(k + 1)·pace_s`` after the call and
+    starts then, or as soon after as the machine allows (a camera's fixed period: a
+    frame started late does not delay the next); 0: back to back.
     """
     whole = []
     due = time.monotonic()
