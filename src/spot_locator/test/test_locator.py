@@ -1,4 +1,6 @@
 """The whole per-frame pipeline on synthetic rolling-shutter stereo pairs of the rig."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -235,8 +237,7 @@ def test_a_spot_cut_by_the_bottom_edge_is_no_whole_partner(seed, monkeypatch):
     left, right = left[:cut].copy(), right[:cut].copy()
     for image in (left, right):
         image[-4:] = image[:4]                 # a dark stripe at the edge: background
-    g = StereoGeometry(fx=g.fx, fy=g.fy, cx=g.cx, cy=g.cy, baseline_m=g.baseline_m,
-                       width=g.width, height=cut)
+    g = dataclasses.replace(g, height=cut)
     # both spots: their centre hidden by the edge (SpotLocator._hidden_by_edge)
     result = SpotLocator(_config(), g).process(left, right)
     assert result.rejected_border == 2 and result.pairs == []

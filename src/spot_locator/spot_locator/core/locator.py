@@ -494,21 +494,16 @@ class SpotLocator:
                     continue
                 if cfg.vignetting == 'cos4':
                     region.roi = self._flat_field(region)
-                rows, u = cm.chord_ends(region.roi, region.support, end, region.noise_sigma,
-                                        region.saturated)
-                if len(rows) < MIN_EDGE_ROWS:
+                cut_pts = self._chord_end_points(side, region, end)
+                if len(cut_pts) < MIN_EDGE_ROWS:
                     continue
-                cut_pts = self._rectify(side, u + region.u0, rows + region.v0)
                 best = None
                 for j in free[other]:
                     s = spots[other][j]
                     if not self._whole(s):
                         continue
                     if (other, j) not in ends:
-                        r_w, u_w = cm.chord_ends(s.region.roi, s.region.support, end,
-                                                 s.region.noise_sigma, s.region.saturated)
-                        ends[other, j] = self._rectify(other, u_w + s.region.u0,
-                                                       r_w + s.region.v0)
+                        ends[other, j] = self._chord_end_points(other, s.region, end)
                     found = self._edge_disparity(cut_pts, ends[other, j], self._centre(s),
                                                  side)
                     if found is not None and (best is None or found[2] > best[2]):
@@ -582,9 +577,13 @@ class SpotLocator:
         semi = np.sqrt(disc) / (-2.0 * q2)
         return centre - semi >= -0.5 and centre + semi <= self.geom.height - 0.5
 
-    def _rectify(self, camera, u, v):
-        """(n, 2) rectified points of raw pixels ``u``, ``v`` of one camera."""
-        pts = np.column_stack([np.asarray(u, float), np.asarray(v, float)])
+    def _chord_end_points(self, camera, region, end):
+        """(n, 2) rectified image points of a region's chord ends on side ``end``
+        (:func:`.centres.chord_ends`), one per bright row.
+        """
+        rows, u = cm.chord_ends(region.roi, region.support, end, region.noise_sigma,
+                                region.saturated)
+        pts = np.column_stack([u + region.u0, (rows + region.v0).astype(float)])
         if self.models is None or len(pts) == 0:
             return pts
         return self.models[camera].rectify_points(pts)
