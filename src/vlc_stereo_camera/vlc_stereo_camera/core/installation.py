@@ -41,7 +41,7 @@ import yaml
 from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
 from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig, mount_angles
 from vlc_common.core.config_files import config_path
-from vlc_common.core.lamp_map import Lamp, LampMap
+from vlc_common.core.lamp_map import SAFE_DUMPER, Lamp, LampMap
 from vlc_common.core.vehicle import CameraMount, ImuMount, VehicleMount
 from vlc_stereo_camera.core.optics_truth import OpticsTruth, TrueCamera
 
@@ -821,8 +821,8 @@ class Installation:
         with open(paths['truth/truth.yaml'], 'w', encoding='utf-8') as stream:
             stream.write(f'# Every drawn value of the installation ({tag}); for the '
                          'evaluation only:\n# no receiver may read this folder.\n')
-            yaml.safe_dump(self.truth_dict(), stream, sort_keys=False,
-                           default_flow_style=None, width=100)
+            yaml.dump(self.truth_dict(), stream, Dumper=SAFE_DUMPER, sort_keys=False,
+                      default_flow_style=None, width=100)
         return {k: str(v) for k, v in paths.items()}
 
 
