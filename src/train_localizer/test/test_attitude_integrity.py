@@ -96,3 +96,53 @@ def test_a_right_attitude_is_never_distrusted():
     assert c.imu_attitude_implausible == 0 and c.fixes_attitude_fallback == 0
     wrong, inside, worst = scores(poses, traj)
     assert wrong == 0 and worst < 0.03
+
+
+def one_wrong_match(events, frame_index, dv_px):
+    """A frame hook: the first confirmed lamp of one frame matched ``dv_px`` rows off in
+    both images (the pair of a spot cut by the image edge, seen once: a wrong stereo
+    match whose range and direction disagree under the IMU attitude, and agree under
+    the wide uncertainty of no attitude).
+    """
+    target = [p[0] for _, kind, p in events if kind == 'frame'][frame_index]
+
+    def hook(stamp, observations, truth):
+        if stamp != target:
+            return observations
+        out, done = [], False
+        for obs in observations:
+            if obs.uid is not None and not done:
+                obs = dataclasses.replace(obs, uv_left=obs.uv_left + [0.0, dv_px],
+                                          uv_right=obs.uv_right + [0.0, dv_px])
+                done = True
+            out.append(obs)
+        return out
+    return target, hook
+
+
+@pytest.mark.parametrize('dv_px', [15.0, 30.0])
+def test_one_wrong_match_does_not_distrust_a_right_attitude(dv_px):
+    traj, events = simulate()
+    target, hook = one_wrong_match(events, 100, dv_px)
+    codes = {}
+    for evidence_s in (0.0, 0.5):      # 0: one lamp was enough (before)
+        loc = Localizer(LAMPS, LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG),
+                                               attitude_evidence_s=evidence_s))
+        poses, fixes, logs = feed(loc, events, frame_hook=hook)
+        codes[evidence_s] = {e.code for e in logs}
+        wrong, inside, _ = scores(poses, traj)
+        assert wrong == 0 and inside >= 0.997
+    # one lamp alone distrusted the attitude; now it takes a second
+    assert 'attitude_distrusted' in codes[0.0]
+    assert 'attitude_distrusted' not in codes[0.5] and 'attitude_suspect' in codes[0.5]
+    assert loc.monitor.counters.fixes_attitude_fallback == 0
+    # the wrong match's fix (stamped at its rows' exposure, within the frame) is rejected
+    in_frame = [f.status for f in fixes if 0 <= f.measurement_ns - target < 34_000_000]
+    assert 'rejected_geometry' in in_frame
+    assert [f.status for f in fixes].count('rejected_geometry') == 1
+
+
+def test_attitude_evidence_must_be_finite_and_not_negative():
+    with pytest.raises(ValueError, match='attitude_evidence_s'):
+        LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG), attitude_evidence_s=-1.0)
+    LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG), attitude_evidence_s=0.0)

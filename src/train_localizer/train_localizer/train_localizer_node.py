@@ -235,8 +235,11 @@ PARAMETERS = (
     ('attitude_plausible_deg', 10.0, _desc('An imu/data attitude more than this off the '
                                            "track's heading or the vertical is not the "
                                            "platform's: ignored, deg.", 0.1, 180.0)),
-    ('attitude_distrust_s', 2.0, _desc('After a confirmed lamp showed the imu/data attitude '
+    ('attitude_distrust_s', 2.0, _desc('After confirmed lamps showed the imu/data attitude '
                                        'wrong, it is ignored for this long, s.', 0.01, 600.0)),
+    ('attitude_evidence_s', 0.5, _desc('It takes two lamps (frames) this close in time '
+                                       'to show the imu/data attitude wrong; the first '
+                                       "one's fix is rejected. 0: one lamp, s.", 0.0, 60.0)),
     ('blind_gap_s', 3.0, _desc('No input for longer than this: the position is lost (reset) '
                                'until a confirmed lamp, s.', 0.01, 1e6)),
     ('clock_tolerance_s', 0.1, _desc('A gap of both inputs counts as elapsed time when the '
@@ -606,6 +609,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
             clock_tolerance_s=p['clock_tolerance_s'],
             attitude_plausible_rad=p['attitude_plausible_deg'] * _DEG,
             attitude_distrust_s=p['attitude_distrust_s'],
+            attitude_evidence_s=p['attitude_evidence_s'],
             attitude_sigma_floor_rad=tuple(v * _DEG for v in p['attitude_sigma_floor_deg']),
             attitude_sigma_unknown_rad=tuple(v * _DEG for v in p['attitude_sigma_unknown_deg']),
             imu_lever_arm_m=tuple(float(v) for v in mount.imu.position_m),

@@ -146,8 +146,13 @@ class LocalizerConfig:
         from the vertical, by more than this is not the platform's (it rides on the
         track): it is ignored as if the sample had none, rad.
     attitude_distrust_s : float
-        After a confirmed lamp whose range and direction disagree with the ``imu/data``
+        After confirmed lamps whose range and direction disagree with the ``imu/data``
         attitude but agree without it, that attitude is ignored for this long, s.
+    attitude_evidence_s : float
+        It takes two such lamps (two frames, or two lamps of one frame) no further apart
+        than this to distrust the attitude; the first one's fix is rejected. One wrong
+        stereo match can agree under the wide attitude uncertainty without the IMU's, a
+        wrong attitude disagrees in every frame; 0: one lamp is enough, s.
     attitude_aiding_period_s : float
         Shortest interval between two heading aids (the heading an accepted lamp shows,
         for the compensator's ``attitude_aiding``), s; 0 = none.
@@ -205,6 +210,7 @@ class LocalizerConfig:
     attitude_sigma_unknown_rad: tuple = (0.5 * _DEG, 0.5 * _DEG, 5.0 * _DEG)
     attitude_plausible_rad: float = 10.0 * _DEG
     attitude_distrust_s: float = 2.0
+    attitude_evidence_s: float = 0.5
     imu_lever_arm_m: tuple = (0.0, 0.0, 0.0)
     tilt_leak_time_s: float = 5.0
     systematic_weight_inflation: float = 3.0
@@ -245,9 +251,10 @@ class LocalizerConfig:
                 raise ValueError(f'{name} must be finite and > 0, got {value}')
         self.imu_lever_arm_m = tuple(float(v) for v in self.imu_lever_arm_m)
         self.pose_sigma_yz_m = tuple(float(v) for v in self.pose_sigma_yz_m)
-        if not (math.isfinite(self.motion_sigma_factor) and self.motion_sigma_factor >= 0.0):
-            raise ValueError(f'motion_sigma_factor must be finite and >= 0, '
-                             f'got {self.motion_sigma_factor}')
+        for name in ('motion_sigma_factor', 'attitude_evidence_s'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'{name} must be finite and >= 0, got {value}')
         if len(self.pose_sigma_yz_m) != 2 or not all(
                 math.isfinite(v) and v > 0.0 for v in self.pose_sigma_yz_m):
             raise ValueError(f'pose_sigma_yz_m must be 2 finite values > 0, '
@@ -328,6 +335,7 @@ class Localizer:
         self._systematic_var = cfg.fix.lamp_position_sigma_m ** 2
         self._last_aid_ns = None
         self._distrust_until_ns = None
+        self._attitude_suspect = None     # (stamp ns, lamp uid) of a first disagreeing lamp
         self.monitor.clear()
 
     def reset(self):
@@ -877,9 +885,11 @@ class Localizer:
     def _fix_without_imu_attitude(self, prep, lamp, fix, report):
         """A confirmed lamp's range and direction disagree under the ``imu/data``
         attitude: the same fix with the track's attitude and ``attitude_sigma_unknown``.
-        When that agrees, the IMU attitude is what was wrong: it is ignored for
-        ``attitude_distrust_s`` and this fix is used (a wrong stereo match disagrees
-        either way). Returns (fix, geometry_ok).
+        When that agrees, either the IMU attitude is wrong or the stereo match is, and
+        under that wide attitude uncertainty a wrong match can agree too. A second lamp
+        showing the same within ``attitude_evidence_s`` (another frame, or another lamp
+        of this one) decides for the attitude: it is ignored for ``attitude_distrust_s``
+        and this fix is used; until then the fix is rejected. Returns (fix, geometry_ok).
         """
         cfg = self.config
         if not cfg.use_imu_attitude or self._att.at(prep.t_ns * 1e-9) is None:
@@ -890,6 +900,20 @@ class Localizer:
         fallback, ok = self._fix_for(alt, lamp)
         if not ok:
             return fix, False
+        window_ns = int(cfg.attitude_evidence_s * NS_PER_S)
+        first, here = self._attitude_suspect, (prep.t_ns, int(lamp.uid))
+        if window_ns > 0 and (first is None or first == here
+                              or abs(prep.t_ns - first[0]) > window_ns):
+            self._attitude_suspect = here
+            report.events.append(Event(Level.WARN, 'attitude_suspect',
+                                       f'lamp {lamp.uid:#06x}: range and direction disagree '
+                                       f'under the imu/data attitude (chi2 '
+                                       f'{fix.chi2_geometry:.1f}) and agree without it: a '
+                                       'wrong attitude or a wrong stereo match; fix rejected '
+                                       'unless another lamp shows the same within '
+                                       f'{cfg.attitude_evidence_s:.1f} s'))
+            return fix, False
+        self._attitude_suspect = None
         self.monitor.counters.fixes_attitude_fallback += 1
         until = prep.t_ns + int(cfg.attitude_distrust_s * NS_PER_S)
         self._distrust_until_ns = max(self._distrust_until_ns or until, until)
