@@ -1104,11 +1104,15 @@ class Localizer:
             self.monitor.counters.unconfirmed_skipped += 1
             report.fixes.append(FixRecord(t_m, None, None, 'waiting_for_uid'))
             return
-        fix, geometry_ok = self._fix_for(prep, lamp)
+        fix_for = self._fix_for
+        if not cfg.fix.track.straight_x:
+            def fix_for(p, lamp_k):
+                return self._fix_for(self._cold_start_attitude(p, lamp_k, report), lamp_k)
+        fix, geometry_ok = fix_for(prep, lamp)
         if not geometry_ok:
             self._geometry_rejected(prep, lamp, fix, report)
             return
-        chain = self._cold.chain(prep, lamp, fix, self._fix_for, self.lamp_map)
+        chain = self._cold.chain(prep, lamp, fix, fix_for, self.lamp_map)
         self._cold.clear()
         t0, fix0 = chain[0]
         i = self._insert_step(t0)
@@ -1132,6 +1136,42 @@ class Localizer:
         report.events.append(Event(Level.OK, 'initialised',
                                    f'initialised at chainage {fix.chainage_m:.3f} m from lamp '
                                    f'{lamp.uid:#06x} and {len(chain) - 1} earlier frames of it'))
+
+    def _cold_start_attitude(self, prep, lamp, report):
+        """``prep`` with the attitude of a cold start on a curved alignment.
+
+        Before the first fix the chainage is unknown, and the track's attitude taken at
+        the alignment's start, or an ``imu/data`` heading judged against it, can be tens
+        of degrees off on a curve (22° at 395 m of ``curved_demo``: every fix of the lamp
+        ahead was rejected, range and direction disagreeing, and the localizer never
+        started). A confirmed lamp tells where the train is: the track frame is taken
+        at the chainage its observation puts the platform at (the lamp's chainage less
+        the observed offset along the track, twice, so that the heading is that of the
+        platform's own chainage), and an ``imu/data`` heading more than
+        ``attitude_plausible_rad`` from it is not used (the track's, with
+        ``attitude_sigma_unknown_rad``).
+        """
+        cfg, g = self.config, self.config.geometry
+        track = cfg.fix.track
+        chainage = float(lamp.track_chainage_m)
+        for _ in range(2):
+            _, tangent, normal = track.frame(chainage)
+            R_track = np.column_stack([tangent, normal, np.cross(tangent, normal)])
+            lamp_from_base = R_track @ (g.R_base_cam @ prep.p_cam + g.t_base_cam)
+            chainage = float(track.chainage_of(lamp.position_m - lamp_from_base))
+        _, tangent, normal = track.frame(chainage)
+        R_track = np.column_stack([tangent, normal, np.cross(tangent, normal)])
+        if cfg.use_imu_attitude and self._att.at(prep.t_ns * 1e-9) is not None:
+            x = prep.R[:, 0]
+            heading = math.atan2(float(x @ normal), float(x @ tangent))
+            if abs(heading) <= cfg.attitude_plausible_rad:
+                return prep
+            report.events.append(Event(Level.WARN, 'attitude_implausible',
+                                       f'imu/data heading {math.degrees(heading):+.1f} deg off '
+                                       f'the track at the chainage lamp {lamp.uid:#06x} shows '
+                                       f'({chainage:.1f} m): the first fix uses the track\'s'))
+        return dataclasses.replace(prep, R=R_track, cov_att=np.diag(
+            np.square(cfg.attitude_sigma_unknown_rad)))
 
     def _set_chainage(self, i, chainage_m, var_m2, keep_speed):
         """Restart the chainage at step ``i`` (see
