@@ -49,3 +49,22 @@ def test_offsets_and_level_alignments_are_unchanged():
     straight = Track()
     assert straight.straight_x and not Track(DEMO).straight_x
     np.testing.assert_array_equal(straight.position(12.5), [12.5, 0.0, 0.0])
+
+
+@pytest.mark.parametrize('chainage_m', [0.0, 240.0, 380.0, 1000.0, 1890.0, 2300.0])
+def test_attitude_is_the_rigs_track_frame(chainage_m):
+    """Track.attitude is the rig's R_map_base of a standing train without vibration:
+    heading, the grade's pitch and the cant's roll (before, the localizer's track
+    attitude had the heading only: 4.7° of cant in curved_demo's R 400 m curve, ten
+    times its stated roll 1σ without the IMU).
+    """
+    truth = Trajectory(MotionProfile('stationary', start_chainage_m=chainage_m),
+                       Vibration(VibrationConfig(enabled=False)), DEMO).sample([0.0])
+    np.testing.assert_allclose(Track(DEMO).attitude(chainage_m), truth.R_map_base[0],
+                               atol=1e-12)
+    np.testing.assert_array_equal(Track().attitude(chainage_m), np.eye(3))
+
+
+def test_the_demo_curve_is_canted():
+    """The curve the test above reads has a cant of several degrees (it tests the roll)."""
+    assert abs(np.degrees(DEMO.evaluate(380.0).cant_rad[0])) > 3.0

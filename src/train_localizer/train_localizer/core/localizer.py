@@ -746,14 +746,16 @@ class Localizer:
         return self._track_attitude(t), np.diag(np.square(cfg.attitude_sigma_unknown_rad))
 
     def _track_attitude(self, t):
-        """The attitude of a platform aligned with the track at the state's chainage at
-        ``t`` (identity on the straight along map x).
+        """The attitude of a platform riding the track at the state's chainage at ``t``
+        (:meth:`Track.attitude`: heading, grade and cant; identity on the straight along
+        map x).
         """
         state = self._steps.state_at(t) if self._steps.t else None
         if state is None and not self.config.fix.track.straight_x:
             state = self._steps.newest_state
-        _, tangent, normal = self._track_frame(None if state is None else float(state.x[0]))
-        return np.column_stack([tangent, normal, np.cross(tangent, normal)])
+        if state is None:
+            state = self._steps.x[-1] if self._steps.x else None
+        return self.config.fix.track.attitude(0.0 if state is None else float(state.x[0]))
 
     # ----------------------------------------------------------------- fixes
     def _fix_for(self, prep, lamp):
@@ -1155,12 +1157,11 @@ class Localizer:
         track = cfg.fix.track
         chainage = float(lamp.track_chainage_m)
         for _ in range(2):
-            _, tangent, normal = track.frame(chainage)
-            R_track = np.column_stack([tangent, normal, np.cross(tangent, normal)])
-            lamp_from_base = R_track @ (g.R_base_cam @ prep.p_cam + g.t_base_cam)
+            lamp_from_base = track.attitude(chainage) @ (g.R_base_cam @ prep.p_cam
+                                                         + g.t_base_cam)
             chainage = float(track.chainage_of(lamp.position_m - lamp_from_base))
         _, tangent, normal = track.frame(chainage)
-        R_track = np.column_stack([tangent, normal, np.cross(tangent, normal)])
+        R_track = track.attitude(chainage)
         if cfg.use_imu_attitude and self._att.at(prep.t_ns * 1e-9) is not None:
             x = prep.R[:, 0]
             heading = math.atan2(float(x @ normal), float(x @ tangent))

@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from vlc_common.core.alignment import Alignment
+from vlc_common.core.rotations import rpy_to_matrix
 
 _E_X = np.array([1.0, 0.0, 0.0])
 _E_Y = np.array([0.0, 1.0, 0.0])
@@ -76,6 +77,18 @@ class Track:
         t = np.array([c, s, 0.0])
         n = np.array([-s, c, 0.0])
         return np.array([p.x_m[0], p.y_m[0], p.elevation_m[0]]) + y0 * n + z0 * _E_Z, t, n
+
+    def attitude(self, chainage_m):
+        """R_map_base (3, 3) of a platform riding the track at a chainage: the track frame
+        Rz(ψ)·Ry(θ)·Rx(φ) of the rig (heading ψ, grade pitch θ = −atan(dz/ds), cant roll
+        φ); the identity on the level straight line along map x.
+        """
+        if self.straight_x:
+            return np.eye(3)
+        p = self.alignment.evaluate(chainage_m)
+        roll = 0.0 if p.cant_rad is None else float(p.cant_rad[0])
+        pitch = 0.0 if p.grade is None else -math.atan(float(p.grade[0]))
+        return rpy_to_matrix(roll, pitch, float(p.heading_rad[0]))
 
     def position(self, chainage_m):
         """Nominal ``base_link`` position (3,) in map at a chainage."""
