@@ -272,3 +272,27 @@ def test_fixed_pace_keeps_every_run_at_the_starting_pace(fixed, paces):
         lane.slow_down()
         return lane.pace
     assert runner.run_jobs([job] * 3, lanes=1, spawn='exec', fixed_pace=fixed) == paces
+
+
+def test_a_child_that_does_not_stop_leaves_its_stacks_in_its_log(tmp_path):
+    """SIGINT ignored, as by a node hung in its shutdown: after the timeout the runner
+    asks for the stacks (SIGUSR1, on which every node dumps them) and then SIGKILLs.
+    """
+    script = ('#!' + sys.executable + '\n'
+              'import faulthandler, signal, time\n'
+              'signal.signal(signal.SIGINT, signal.SIG_IGN)\n'
+              'faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)\n'
+              'print("waiting", flush=True)\n'
+              'def hung_in_shutdown():\n'
+              '    while True:\n'
+              '        time.sleep(0.01)\n'
+              'hung_in_shutdown()\n')
+    graph = _pausing_tool(tmp_path, None, script)
+    graph.start('pkg', 'tool')
+    deadline = time.monotonic() + 30.0
+    while 'waiting' not in graph.log('tool') and time.monotonic() < deadline:
+        time.sleep(0.05)
+    codes = graph.stop_many(['tool'], timeout_s=0.5)
+    assert codes == {'tool': -signal.SIGKILL}
+    log = graph.log('tool')
+    assert 'most recent call first' in log and 'hung_in_shutdown' in log

@@ -20,6 +20,7 @@ Two ways to start a node (``spawn``):
   forked; a child closes the fork server's liveness pipe and asks for SIGINT when the
   fork server ends, so a killed evaluation leaves no node running.
 """
+import contextlib
 import ctypes
 import functools
 import importlib
@@ -38,6 +39,8 @@ import time
 import yaml
 
 SPAWN_MODES = ('exec', 'fork')
+#: s between the SIGUSR1 (stack dump) and the SIGKILL of a process that did not stop
+STACK_DUMP_S = 0.5
 # how GraphRun.start hands a forked child its niceness (not left in the node's environment)
 NICE_ENV = 'VLC_GRAPH_RUNNER_NICE'
 
@@ -349,6 +352,12 @@ class GraphRun:
     def stop_many(self, names, timeout_s=10.0):
         """SIGINT several processes at once, wait for all, SIGKILL the ones still running
         after ``timeout_s``; returns ``{name: exit code}``.
+
+        Before the SIGKILL a process still running gets SIGUSR1, on which every node
+        writes the Python stack of each of its threads into its log
+        (``vlc_common.process.run_node``): what a node that did not stop was doing (a
+        localizer SIGKILLed at the end of one static run in a few hundred, its log silent
+        on why). The dump gets :data:`STACK_DUMP_S` before the SIGKILL.
         """
         names = [n for n in names if n in self.procs]
         for name in names:
@@ -360,6 +369,9 @@ class GraphRun:
             try:
                 proc.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
+                self._signal(name, signal.SIGUSR1)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(STACK_DUMP_S)
                 self._signal(name, signal.SIGKILL)
                 try:
                     proc.wait(5.0)
