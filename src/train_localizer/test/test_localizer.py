@@ -432,6 +432,33 @@ def test_curved_alignment_through_transition_and_curve(speed_kmh):
     assert np.max(np.abs(along)) < 0.06
 
 
+def curved_run_with_a_straight_track_heading(profile, seed, t_end_s):
+    """(trajectory, poses, fixes) of a run on curved_demo whose imu/data heading is that of
+    a straight track (yaw 0 claiming 0.05°, roll and pitch right): the compensator's after
+    a cold start in a curve, where its heading pull is off and nothing starts its heading.
+    """
+    from train_localizer.core.track import Track
+    from vlc_common.core.alignment import Alignment
+    from vlc_common.core.lamp_map import alignment_lamp_map
+    from vlc_common.core.rotations import quat_to_rpy
+
+    alignment = Alignment.named('curved_demo')
+    lamps = alignment_lamp_map(alignment)
+    traj = Trajectory(profile, Vibration(seed=seed), alignment=alignment)
+    sim = SensorSimulator(traj, RIG, lamps, SensorErrors(), np.random.default_rng(seed))
+    events = []
+    for arrival, kind, payload in event_stream(sim, 0.0, t_end_s):
+        if kind == 'imu' and payload.quat_xyzw is not None:
+            roll, pitch, _ = quat_to_rpy(payload.quat_xyzw)
+            payload = dataclasses.replace(payload, quat_xyzw=quat_from_rpy(roll, pitch, 0.0),
+                                          attitude_cov_rad2=np.eye(3) * np.radians(0.05) ** 2)
+        events.append((arrival, kind, payload))
+    cfg = LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG))
+    cfg.fix.track = Track(alignment)
+    poses, fixes, _ = feed(Localizer(lamps, cfg), events)
+    return traj, poses, fixes
+
+
 @pytest.mark.parametrize('distance_m', [3.0, 5.0, 13.0])
 def test_a_cold_start_on_a_curve_with_a_straight_track_heading(distance_m):
     """A train standing in the R = 400 m curve of curved_demo, ``distance_m`` before the
@@ -444,28 +471,9 @@ def test_a_cold_start_on_a_curve_with_a_straight_track_heading(distance_m):
     direction disagreeing, and no pose at all. The first confirmed lamp now tells the
     chainage, the heading at it shows imu/data's wrong, and the train is located.
     """
-    from train_localizer.core.track import Track
-    from vlc_common.core.alignment import Alignment
-    from vlc_common.core.lamp_map import alignment_lamp_map
-    from vlc_common.core.rotations import quat_to_rpy
-
-    alignment = Alignment.named('curved_demo')
-    lamps = alignment_lamp_map(alignment)
-    traj = Trajectory(MotionProfile('stationary', start_chainage_m=400.0 - distance_m),
-                      Vibration(seed=3), alignment=alignment)
-    sim = SensorSimulator(traj, RIG, lamps, SensorErrors(), np.random.default_rng(3))
-    events = []
-    for arrival, kind, payload in event_stream(sim, 0.0, 2.0):
-        if kind == 'imu' and payload.quat_xyzw is not None:
-            roll, pitch, _ = quat_to_rpy(payload.quat_xyzw)
-            payload = dataclasses.replace(payload, quat_xyzw=quat_from_rpy(roll, pitch, 0.0),
-                                          attitude_cov_rad2=np.eye(3) * np.radians(0.05) ** 2)
-        events.append((arrival, kind, payload))
+    traj, poses, fixes = curved_run_with_a_straight_track_heading(
+        MotionProfile('stationary', start_chainage_m=400.0 - distance_m), 3, 2.0)
     assert abs(np.degrees(traj.sample(np.array([1.0])).track_heading_rad[0])) > 20.0
-    cfg = LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG))
-    cfg.fix.track = Track(alignment)
-    loc = Localizer(lamps, cfg)
-    poses, fixes, _ = feed(loc, events)
     statuses = [f.status for f in fixes]
     assert 'initialised' in statuses and statuses.count('accepted') > 20
     # (the imu/data samples taken before the first fix were judged at no chainage)
@@ -483,28 +491,8 @@ def test_a_flying_start_in_a_canted_curve_with_a_straight_track_heading(start_m,
     and the grade. With the heading alone the first frames of every lamp (the farthest)
     failed the geometry gate: 38 of 122 fixes at 60 km/h, 6.5 cm off.
     """
-    from train_localizer.core.track import Track
-    from vlc_common.core.alignment import Alignment
-    from vlc_common.core.lamp_map import alignment_lamp_map
-    from vlc_common.core.rotations import quat_to_rpy
-
-    alignment = Alignment.named('curved_demo')
-    lamps = alignment_lamp_map(alignment)
-    traj = Trajectory(MotionProfile('constant', start_chainage_m=start_m,
-                                    speed_mps=speed_kmh / 3.6),
-                      Vibration(seed=5), alignment=alignment)
-    sim = SensorSimulator(traj, RIG, lamps, SensorErrors(), np.random.default_rng(5))
-    events = []
-    for arrival, kind, payload in event_stream(sim, 0.0, 6.0):
-        if kind == 'imu' and payload.quat_xyzw is not None:
-            roll, pitch, _ = quat_to_rpy(payload.quat_xyzw)
-            payload = dataclasses.replace(payload, quat_xyzw=quat_from_rpy(roll, pitch, 0.0),
-                                          attitude_cov_rad2=np.eye(3) * np.radians(0.05) ** 2)
-        events.append((arrival, kind, payload))
-    cfg = LocalizerConfig(geometry=RigGeometry.from_stereo_rig(RIG))
-    cfg.fix.track = Track(alignment)
-    loc = Localizer(lamps, cfg)
-    poses, fixes, _ = feed(loc, events)
+    traj, poses, fixes = curved_run_with_a_straight_track_heading(
+        MotionProfile('constant', start_chainage_m=start_m, speed_mps=speed_kmh / 3.6), 5, 6.0)
     statuses = [f.status for f in fixes]
     assert statuses.count('accepted') > 100 and statuses.count('rejected_geometry') <= 2
     err, _, t = errors_of(poses, traj)
