@@ -36,6 +36,7 @@ from rosbags.typesys.store import Typestore
 import yaml
 
 from vlc_bags.typesupport import jazzy_typestore, message_definition
+from vlc_common.core.config_files import SAFE_DUMPER, SAFE_LOADER
 
 _LOG = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ def _dump_yaml(data: dict) -> str:
     # libyaml (PyYAML's C dumper): metadata.yaml is rewritten at every flush and grows by
     # one file entry each time; ruamel, which rosbags uses, needs ~1 ms per entry.
     # width: one line per value, no folded RIHS01 hashes for line-oriented tools.
-    return yaml.dump(data, Dumper=getattr(yaml, 'CSafeDumper', yaml.SafeDumper),
+    return yaml.dump(data, Dumper=SAFE_DUMPER,
                      default_flow_style=False, width=4096)
 
 
@@ -191,7 +192,7 @@ class SplitBagWriter:
         writer.close()
         split_dir = writer.path
         split_meta = yaml.load((split_dir / 'metadata.yaml').read_text(),
-                               Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
+                               Loader=SAFE_LOADER)
         info = split_meta['rosbag2_bagfile_information']
         (file_info,) = info['files']
         self._files.append(file_info)

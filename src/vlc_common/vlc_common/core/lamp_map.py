@@ -25,12 +25,8 @@ import numpy as np
 import yaml
 
 from vlc_common.core.alignment import NAMED_ALIGNMENTS, Alignment
-from vlc_common.core.config_files import config_path
+from vlc_common.core.config_files import SAFE_DUMPER, SAFE_LOADER, config_path
 from vlc_common.core.protocol import uid_of
-
-#: libyaml's emitter where PyYAML has it (the same text as ``yaml.safe_dump``, a quarter of
-#: the CPU: a drawn installation writes two 200-lamp maps per evaluation run).
-SAFE_DUMPER = getattr(yaml, 'CSafeDumper', yaml.SafeDumper)
 
 PACKAGE = 'vlc_common'
 
@@ -126,7 +122,7 @@ class LampMap:
         with open(path, encoding='utf-8') as stream:
             # libyaml's safe loader where PyYAML has it: 8x faster on the 200-lamp map,
             # which every node and every evaluation scenario loads
-            data = yaml.load(stream, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))
+            data = yaml.load(stream, Loader=SAFE_LOADER)
         if not isinstance(data, dict) or 'lamps' not in data:
             raise ValueError(f'{path}: not a lamp map (no "lamps" list)')
         lamps = [Lamp(uid=int(d['uid']), line_id=int(d['line_id']),

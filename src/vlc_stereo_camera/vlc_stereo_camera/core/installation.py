@@ -40,8 +40,8 @@ import yaml
 
 from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
 from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig, mount_angles
-from vlc_common.core.config_files import config_path
-from vlc_common.core.lamp_map import SAFE_DUMPER, Lamp, LampMap
+from vlc_common.core.config_files import SAFE_DUMPER, config_path
+from vlc_common.core.lamp_map import Lamp, LampMap
 from vlc_common.core.vehicle import CameraMount, ImuMount, VehicleMount
 from vlc_stereo_camera.core.optics_truth import OpticsTruth, TrueCamera
 
