@@ -514,8 +514,7 @@ class Localizer:
         heading = 0.0
         if self._steps.newest_state is not None or cfg.fix.track.straight_x:
             # (on a curve the track's heading is known once the chainage is)
-            _, tangent, normal = self._track_frame()
-            heading = math.atan2(float(R[:, 0] @ normal), float(R[:, 0] @ tangent))
+            heading = self._heading_off_track(R)
         tilt = math.acos(min(1.0, max(-1.0, float(R[2, 2]))))
         if max(abs(heading), tilt) <= cfg.attitude_plausible_rad:
             return True
@@ -526,14 +525,25 @@ class Localizer:
                                    'platform\'s; used without attitude'))
         return False
 
+    def _newest_chainage(self):
+        """The newest chainage estimate; the start of the track before there is one."""
+        state = self._steps.x[-1] if self._steps.x else None
+        return float(state.x[0]) if state is not None else 0.0
+
     def _track_frame(self, chainage_m=None):
-        """(point, tangent, left normal) of the track at ``chainage_m`` (default: the
-        newest estimate; the start of the track before there is one).
+        """(point, tangent, left normal) of the track at ``chainage_m`` (default:
+        :meth:`_newest_chainage`).
         """
         if chainage_m is None:
-            state = self._steps.x[-1] if self._steps.x else None
-            chainage_m = float(state.x[0]) if state is not None else 0.0
+            chainage_m = self._newest_chainage()
         return self.config.fix.track.frame(chainage_m)
+
+    def _heading_off_track(self, R, chainage_m=None):
+        """Heading of attitude ``R`` (body x) from the track's running direction at
+        ``chainage_m`` (default: the newest estimate), rad, positive to the left.
+        """
+        _, tangent, normal = self._track_frame(chainage_m)
+        return math.atan2(float(R[:, 0] @ normal), float(R[:, 0] @ tangent))
 
     def _bridge_gap(self, t, previous_ns, previous_received, report):
         """An IMU gap from ``previous_ns`` to ``t`` in which no frame came either.
@@ -753,9 +763,8 @@ class Localizer:
         state = self._steps.state_at(t) if self._steps.t else None
         if state is None and not self.config.fix.track.straight_x:
             state = self._steps.newest_state
-        if state is None:
-            state = self._steps.x[-1] if self._steps.x else None
-        return self.config.fix.track.attitude(0.0 if state is None else float(state.x[0]))
+        return self.config.fix.track.attitude(
+            self._newest_chainage() if state is None else float(state.x[0]))
 
     # ----------------------------------------------------------------- fixes
     def _fix_for(self, prep, lamp):
@@ -1160,18 +1169,15 @@ class Localizer:
             lamp_from_base = track.attitude(chainage) @ (g.R_base_cam @ prep.p_cam
                                                          + g.t_base_cam)
             chainage = float(track.chainage_of(lamp.position_m - lamp_from_base))
-        _, tangent, normal = track.frame(chainage)
-        R_track = track.attitude(chainage)
         if cfg.use_imu_attitude and self._att.at(prep.t_ns * 1e-9) is not None:
-            x = prep.R[:, 0]
-            heading = math.atan2(float(x @ normal), float(x @ tangent))
+            heading = self._heading_off_track(prep.R, chainage)
             if abs(heading) <= cfg.attitude_plausible_rad:
                 return prep
             report.events.append(Event(Level.WARN, 'attitude_implausible',
                                        f'imu/data heading {math.degrees(heading):+.1f} deg off '
                                        f'the track at the chainage lamp {lamp.uid:#06x} shows '
                                        f'({chainage:.1f} m): the first fix uses the track\'s'))
-        return dataclasses.replace(prep, R=R_track, cov_att=np.diag(
+        return dataclasses.replace(prep, R=track.attitude(chainage), cov_att=np.diag(
             np.square(cfg.attitude_sigma_unknown_rad)))
 
     def _set_chainage(self, i, chainage_m, var_m2, keep_speed):
