@@ -178,7 +178,9 @@ def main(argv=None):
     parser.add_argument('--outage', action='store_true',
                         help='also run the lamp-outage scenario (every second lamp dark for '
                              '200 m, then none for 500 m) and add its table')
-    parser.add_argument('--outage-speed', type=float, default=companions.OUTAGE_SPEED_KMH)
+    parser.add_argument('--outage-speed', type=float, default=companions.OUTAGE_SPEED_KMH,
+                        help='outage: speed of the straight-track outage run, km/h; 0: no '
+                             'straight run')
     parser.add_argument('--outage-curved-speed', type=float,
                         default=companions.CURVED_OUTAGE_SPEED_KMH,
                         help='outage: speed of the curved_demo outage run with curvature_node '
@@ -289,7 +291,8 @@ def main(argv=None):
             observe_s=args.observe_s, curved_duration_s=args.companion_curved_s,
             curved=args.companion_curved_s > 0)
     if args.outage:
-        kinds['outage'] = [companions.outage_scenario(out / 'outage', args.outage_speed)]
+        kinds['outage'] = ([companions.outage_scenario(out / 'outage', args.outage_speed)]
+                           if args.outage_speed > 0 else [])
         if args.outage_curved_speed > 0:
             kinds['outage'].append(companions.curved_outage_scenario(
                 out / 'outage', args.outage_curved_speed))
