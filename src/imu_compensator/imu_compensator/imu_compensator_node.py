@@ -61,7 +61,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Imu
 
 from imu_compensator.conversions import fill_imu_data, fuse_aiding, imu_sample, odometry_speed
-from imu_compensator.core.attitude_filter import AttitudeFilterConfig
+from imu_compensator.core.attitude_filter import AttitudeFilterConfig, pulls_on_alignment
 from imu_compensator.core.compensator import (
     AidingStatus,
     AttitudeCompensator,
@@ -69,6 +69,7 @@ from imu_compensator.core.compensator import (
     SampleStatus,
 )
 from imu_compensator.core.zero_velocity import OdometryVeto, OdometryVetoConfig, ZeroVelocityConfig
+from vlc_common.core.alignment import Alignment
 from vlc_common.core.rotations import quat_from_rpy, quat_to_matrix
 from vlc_common.core.stamp_guard import StampGuard
 from vlc_common.core.vehicle import load_vehicle
@@ -96,6 +97,9 @@ NODE_PARAMETERS = (
                                        'is warned about once).', ptype=_STRING)),
     ('base_frame_id', 'base_link', _desc('frame_id of imu/data: the platform whose attitude '
                                          'is estimated.', ptype=_STRING)),
+    ('alignment', 'straight', _desc('Track alignment (straight, curved_demo, ...). On one '
+                                    'with curves, grade or cant the pulls toward a constant '
+                                    'track attitude are switched off.', ptype=_STRING)),
     ('vehicle_path', '', _desc("Vehicle mount file (the IMU's boresight: imu_link in "
                                "base_link); '' = share/vlc_common/config/vehicle.yaml.",
                                ptype=_STRING)),
@@ -225,6 +229,7 @@ class NodeConfig:
     forward_jump_s: float
     time_base_confirm_count: int
     compensator: CompensatorConfig
+    pull_note: str = None        # why the pulls are off (alignment), None if not changed
 
 
 def _triple(name, values, non_negative=False):
@@ -270,6 +275,7 @@ def read_config(node):
         track_heading_rad=v['track_heading_rad'], heading_offset_rad=v['heading_offset_rad'],
         gravity_time_constant_s=v['gravity_time_constant_s'],
         gravity_gate_mps2=v['gravity_gate_mps2'], update_period_s=v['update_period_s'])
+    filt, pull_note = pulls_on_alignment(filt, Alignment.named(v['alignment']))
     zv = ZeroVelocityConfig(window_s=v['zero_velocity_window_s'],
                             gyro_std_threshold_rps=v['zero_velocity_gyro_std_rps'],
                             accel_std_threshold_mps2=v['zero_velocity_accel_std_mps2'],
@@ -296,7 +302,8 @@ def read_config(node):
         heading_aiding_std_rad=v['heading_aiding_std_rad'],
         poll_period_s=v['poll_period_s'], diagnostics_period_s=v['diagnostics_period_s'],
         warn_throttle_s=v['warn_throttle_s'], forward_jump_s=v['forward_jump_s'],
-        time_base_confirm_count=v['time_base_confirm_count'], compensator=comp)
+        time_base_confirm_count=v['time_base_confirm_count'], compensator=comp,
+        pull_note=pull_note)
 
 
 class ImuCompensatorNode(Node):
@@ -343,6 +350,8 @@ class ImuCompensatorNode(Node):
             f'{fc.heading_time_constant_s:g} s, tilt tau {fc.tilt_time_constant_s:g} s, '
             f'track heading {fc.track_heading_rad / DEG:.3f} deg + offset '
             f'{fc.heading_offset_rad / DEG:.3f} deg at speed')
+        if cfg.pull_note:
+            self.get_logger().info(cfg.pull_note)
 
     # ------------------------------------------------------------------ callbacks
     def _on_poll(self):

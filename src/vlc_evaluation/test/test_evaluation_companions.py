@@ -30,7 +30,7 @@ def test_companion_scenarios_start_every_method_with_the_tracks_parameters():
         assert p['stereo_camera_node']['alignment'] == 'curved_demo'
         assert p['adis16488_node']['alignment'] == 'curved_demo'
         assert p['curvature_node']['alignment'] == 'curved_demo'
-        assert p['imu_compensator_node']['heading_time_constant_s'] == 0.0
+        assert p['imu_compensator_node']['alignment'] == 'curved_demo'
         for exe in ('vlc_decoder_node', 'train_localizer_node', 'ins_beacon_node',
                     'rssi_localizer_node'):
             assert p[exe]['lamp_map_path'].endswith('lamp_map_curved_demo.yaml')
@@ -135,7 +135,7 @@ def test_curved_outage_scenario_darkens_curved_track_and_runs_curvature(tmp_path
     assert s.start_chainage_m + s.duration_s * s.speed_kmh / 3.6 > 1410.0
     assert [exe for _, exe, _ in s.extra_nodes] == ['curvature_node']
     assert s.node_params['curvature_node']['alignment'] == 'curved_demo'
-    assert s.node_params['imu_compensator_node']['heading_time_constant_s'] == 0.0
+    assert s.node_params['imu_compensator_node']['alignment'] == 'curved_demo'
     assert s.node_params['vlc_decoder_node']['lamp_map_path'] == \
         default_lamp_map_path('curved_demo')
     assert '/companion/curvature/pose' in s.recorded_topics()

@@ -30,8 +30,8 @@ Three scenario kinds of the runner (``Scenario.kind``), each scored from its bag
   INS beacon checker's flags.
 
 Curved scenarios pass ``alignment: curved_demo`` to the rig, the curved lamp map to
-every receiver, and ``heading_time_constant_s: 0`` to the IMU compensator (its heading
-pull is toward a constant track heading, wrong on a curve).
+every receiver and the IMU compensator (whose pulls toward a constant track attitude
+are wrong on curves, grades and cant: it switches them off there).
 """
 import pathlib
 
@@ -141,8 +141,7 @@ def configure(scenario, methods=tuple(COMPANION_NODES), alignment='straight',
     params.setdefault('vlc_decoder_node', {}).update(lamp_map_path=receiver_map)
     params.setdefault('train_localizer_node', {}).update(lamp_map_path=receiver_map,
                                                          alignment=alignment)
-    if alignment != 'straight':
-        params.setdefault('imu_compensator_node', {}).update(heading_time_constant_s=0.0)
+    params.setdefault('imu_compensator_node', {}).update(alignment=alignment)
     nodes = []
     if 'rssi' in methods:
         nodes.append(PHOTODIODE)

@@ -323,8 +323,11 @@ def main(argv=None):
         loop = None
         if args.compensator:
             try:
+                # the localizer's alignment, unless given (the compensator's pulls need it)
                 loop = CompensatorLoop(args.compensator_params_file or None,
-                                       dict(args.compensator_overrides))
+                                       dict({'alignment': params['alignment']}
+                                            if params.get('alignment') else {},
+                                            **dict(args.compensator_overrides)))
             except (OSError, ValueError) as exc:
                 parser.error(str(exc))
         try:

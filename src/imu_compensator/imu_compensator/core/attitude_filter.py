@@ -48,7 +48,7 @@ a few µs); the covariance is propagated and the updates applied once per
 matrices (their attitude–bias blocks add up).
 """
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -205,6 +205,30 @@ class AttitudeFilterConfig:
         if self.update_period_s > self.pull_window_s:
             raise ValueError('update_period_s must not exceed pull_window_s')
 
+
+
+def pulls_on_alignment(config, alignment):
+    """(config, note): ``config`` (AttitudeFilterConfig) for a platform running on
+    ``alignment`` (``vlc_common.core.alignment.Alignment``).
+
+    The pulls hold the attitude's slow mean to one constant track attitude
+    (``track_roll_rad``, ``track_pitch_rad``, ``track_heading_rad``): right on a straight,
+    level track only. On curves, grades or cant the track's attitude changes along it
+    and the compensator does not know the chainage, so a pull would drag the estimate
+    toward a wrong attitude wherever no lamp aids it: with them on curved_demo its
+    heading ended 20-30° off and its pitch 1.6° (the grade) in a dark stretch, while its
+    covariance said 0.1°, and the localizer's dead reckoning through it was 30 m off.
+    There both pulls are off (``note`` says so; None when nothing changed): the attitude
+    follows the gyro, kept right by the lamps' attitude aids.
+    """
+    if alignment.is_straight and alignment.is_level:
+        return config, None
+    if config.tilt_time_constant_s == 0.0 and config.heading_time_constant_s == 0.0:
+        return config, None
+    name = getattr(alignment, 'name', 'custom')
+    return (replace(config, tilt_time_constant_s=0.0, heading_time_constant_s=0.0),
+            f'alignment {name} has curves, grade or cant: the pulls toward one constant '
+            'track attitude are off; the attitude follows the gyro and the lamps\' aids')
 
 def left_jacobian(phi):
     """J_l(φ) of SO(3): Exp(φ + δ) = Exp(J_l(φ)·δ)·Exp(φ) + O(δ²)."""

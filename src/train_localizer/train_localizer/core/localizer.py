@@ -879,11 +879,16 @@ class Localizer:
         self._attitude_aid(prep, lamp, fix, report)
 
     def _attitude_aid(self, prep, lamp, fix, report):
-        """At most every ``attitude_aiding_period_s``: the attitude this accepted lamp shows."""
+        """At most every ``attitude_aiding_period_s``: the attitude this accepted lamp shows.
+
+        Sent also when imu/data's attitude is not used (none, implausible, distrusted):
+        the fix then took the track's, and the aid is what tells the compensator its
+        attitude is wrong (after a cold start in a curve its heading is 20-30° off, and
+        without aids it stayed so for the whole run).
+        """
         cfg = self.config
         period = cfg.attitude_aiding_period_s
-        if (period <= 0.0 or not cfg.use_imu_attitude or not cfg.fix.use_range_constraint
-                or self._att.at(prep.t_ns * 1e-9) is None):
+        if period <= 0.0 or not cfg.use_imu_attitude or not cfg.fix.use_range_constraint:
             return
         if self._last_aid_ns is not None and abs(prep.t_ns - self._last_aid_ns) < period * NS_PER_S:
             return
