@@ -105,7 +105,8 @@ class AttitudeAid:
 
     ``quat_xyzw`` is the attitude the fix used at ``stamp_ns`` (imu/data's; the track's
     when imu/data's is not usable, so that a compensator whose attitude is wrong gets it
-    back) corrected by the attitude error the lamp's range and direction show (:func:`~train_localizer.core.fix.vision_attitude`);
+    back) corrected by the attitude error the lamp's range and direction show
+    (:func:`~train_localizer.core.fix.vision_attitude`);
     ``cov_rad2`` its covariance about the map axes from the lamp alone (the IMU's own
     attitude was not used: large about the line of sight, which one lamp cannot see),
     rad². ``chainage_m`` is the fix's.
