@@ -90,6 +90,13 @@ def spin_until_shutdown(spin, context=None):
 #: Exit code of a node that cannot start: invalid parameters, an unreadable file.
 EXIT_INVALID_CONFIG = 2
 
+#: s the node's teardown (``destroy_node``: rcl's node and Fast DDS's participant, then
+#: ``rclpy.try_shutdown``) may take before the process dumps its stacks and exits 1
+#: (:func:`run_node`). Rarely, with every node of a graph stopping at once, Fast DDS's
+#: participant deletion never returned (CI: a spot locator still there 20 s after two
+#: SIGINTs, its stack in ``destroy_node``; the evaluation: a localizer SIGKILLed).
+TEARDOWN_WATCHDOG_S = 5.0
+
 
 class _StopSignals:
     """SIGINT / SIGTERM handler under rclpy's own.
@@ -191,7 +198,8 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
 
     One or two SIGINTs (a terminal's Ctrl-C, ``ros2 launch``) or a SIGTERM end the node
     with exit code 0 and no traceback; the node and its DDS participant are destroyed,
-    so no shared-memory segment is left behind.
+    so no shared-memory segment is left behind. A teardown that has not returned after
+    :data:`TEARDOWN_WATCHDOG_S` writes every thread's stack to stderr and exits 1.
     """
     import rclpy
     from rclpy.exceptions import ParameterException
@@ -228,8 +236,12 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
         if node is not None:
             if stop is not None:
                 stop(node)
+            # A C-level timer (no GIL needed: the hang is inside rcl): stacks to the log,
+            # then _exit(1), so the process ends with its reason instead of a SIGKILL.
+            faulthandler.dump_traceback_later(TEARDOWN_WATCHDOG_S, exit=True)
             node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
         # Python's finalisation resets a signal with a Python handler to the default
         # action: a second SIGINT arriving then would kill the process (exit -2). An
         # ignored signal is left ignored.
