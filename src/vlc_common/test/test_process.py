@@ -108,21 +108,19 @@ raise SystemExit(process.run_node(lambda: Node('hanging_teardown'), 'hanging_tea
 '''
 
 
-def test_a_teardown_that_hangs_ends_the_process_with_its_stacks(tmp_path):
+def test_a_teardown_that_hangs_ends_the_process_with_its_stacks(tmp_path, ros_env):
     """destroy_node that does not return (seen: Fast DDS's participant deletion, with a
     whole graph stopping at once) no longer leaves the process hanging until a SIGKILL:
     after TEARDOWN_WATCHDOG_S its stacks are in its log and it exits 1.
     """
-    import os
     import subprocess
     import sys
     import time
     script = tmp_path / 'hang.py'
     script.write_text(_HANGING_TEARDOWN)
-    env = dict(os.environ, ROS_DOMAIN_ID='231', ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     start = time.monotonic()
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=30.0, env=env)
+                          timeout=30.0, env=ros_env)
     assert proc.returncode == 1, proc.stderr
     assert time.monotonic() - start < 20.0
     assert 'Timeout' in proc.stderr and 'destroy_node' in proc.stderr

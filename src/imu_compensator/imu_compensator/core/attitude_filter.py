@@ -206,7 +206,6 @@ class AttitudeFilterConfig:
             raise ValueError('update_period_s must not exceed pull_window_s')
 
 
-
 def pulls_on_alignment(config, alignment):
     """(config, note): ``config`` (AttitudeFilterConfig) for a platform running on
     ``alignment`` (``vlc_common.core.alignment.Alignment``).
@@ -229,6 +228,7 @@ def pulls_on_alignment(config, alignment):
     return (replace(config, tilt_time_constant_s=0.0, heading_time_constant_s=0.0),
             f'alignment {name} has curves, grade or cant: the pulls toward one constant '
             'track attitude are off; the attitude follows the gyro and the lamps\' aids')
+
 
 def left_jacobian(phi):
     """J_l(φ) of SO(3): Exp(φ + δ) = Exp(J_l(φ)·δ)·Exp(φ) + O(δ²)."""
