@@ -17,6 +17,11 @@
 #     ablation rows), its table written into docs/arch/evaluation.md;
 #  8. departures and stops (stand, pull away, cruise, brake, stand), its table written
 #     into docs/arch/evaluation.md.
+# The protocols' scenarios run as lockstep graphs (--lockstep: the same nodes, parameter
+# files and recorded bags, in one process per scenario on simulated time; no DDS, no
+# pacing, nothing falls behind, the same bag on every run); the latency replays, the live
+# graph alone, the companion methods and the faults run as the graph, and the latency
+# figures come only from those.
 # Bags, logs and report: out/eval/ (OUT=... to change).
 set -eo pipefail
 cd "$VLC_WS"
@@ -44,22 +49,22 @@ step() {
     echo "step $n_step: $((SECONDS - t0)) s  run_evaluation $*" >> "$times"
 }
 n_step=0
-step --protocol full --latency --out "$out"
-step --protocol companions --ablations \
+step --protocol full --latency --lockstep --out "$out"
+step --protocol companions --ablations --lockstep \
     --ablation-trials 1 --ablation-runs 1 --out "$out"
 step --protocol full --latency --ablations \
     --ablation-trials 1 --ablation-runs 1 --companions --outage --forged --rescore \
     --out "$out" --readme README.md \
     --companions-docs docs/arch/evaluation.md docs/arch/companion_localizers.md
-step --protocol full --rig-profile realistic \
+step --protocol full --rig-profile realistic --lockstep \
     --out "$out/realistic" --profile-docs README.md
-step --protocol none --budget --out "$out/budget" \
+step --protocol none --budget --lockstep --out "$out/budget" \
     --budget-docs README.md
 step --protocol none --faults --out "$out/faults" \
     --faults-docs README.md docs/arch/evaluation.md
-step --protocol none --passes 10 --passes-trains 11 12 \
+step --protocol none --passes 10 --passes-trains 11 12 --lockstep \
     --passes-ablations --out "$out/passes" --passes-docs docs/arch/evaluation.md
-step --protocol none --departures 3 --first-seed 11 \
+step --protocol none --departures 3 --first-seed 11 --lockstep \
     --out "$out/departures" --departures-docs docs/arch/evaluation.md
 echo "total: $SECONDS s ($((SECONDS / 60)) min)" >> "$times"
 cat "$times"

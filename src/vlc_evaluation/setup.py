@@ -26,6 +26,7 @@ setup(
         'console_scripts': [
             'run_evaluation = vlc_evaluation.cli:main',
             'localizer_replay = vlc_evaluation.localizer_replay:main',
+            'lockstep_graph = vlc_evaluation.lockstep:main',
             'rig_benchmark = vlc_evaluation.benchmarks.rig:main',
             'decoder_benchmark = vlc_evaluation.benchmarks.decoder:main',
             'spot_benchmark = vlc_evaluation.benchmarks.spot_locator:main',

@@ -251,6 +251,9 @@ class SpotLocatorNode(Node):
                                       int(round(cfg.forward_jump_s * 1e9)),
                                       cfg.time_base_confirm_count)
         self._speed = (cfg.assumed_speed_mps, -np.inf)
+        # the clock of the odometry's age (an in-process driver on simulated time
+        # replaces it: vlc_evaluation.lockstep)
+        self._monotonic = time.monotonic
         self._stats = dict(frames=0, pairs=0, bad_image=0, no_camera_info=0,
                            size_mismatch=0, failed=0, unmatched=0, border=0,
                            edge_pairs=0)
@@ -317,7 +320,7 @@ class SpotLocatorNode(Node):
         v = msg.twist.twist.linear
         speed = float(np.sqrt(v.x * v.x + v.y * v.y + v.z * v.z))
         if np.isfinite(speed):
-            self._speed = (speed, time.monotonic())
+            self._speed = (speed, self._monotonic())
         else:
             self._warn('odometry', 'train/odometry speed is not finite; ignored')
 
@@ -377,7 +380,7 @@ class SpotLocatorNode(Node):
                        f'{(g.width, g.height)}; stereo pair skipped')
             return
         speed, received = self._speed
-        if time.monotonic() - received > self.config.odometry_timeout_s:
+        if self._monotonic() - received > self.config.odometry_timeout_s:
             speed = self.config.assumed_speed_mps
         result = locator.process(left, right, speed)
         records = conversions.pairs_to_records(result.pairs)

@@ -54,8 +54,8 @@ from vlc_common.process import keep_large_buffers, run_node
 class BagRecorderNode(Node):
     """Record raw CDR messages of chosen topics into a crash-safe rosbag2 bag."""
 
-    def __init__(self) -> None:
-        super().__init__('bag_recorder')
+    def __init__(self, **kwargs) -> None:
+        super().__init__('bag_recorder', **kwargs)
         self.config = self._read_config()
         output = Path(self.config.output or default_output_name())
         self.session = RecordingSession(self.config, output)

@@ -152,6 +152,11 @@ def main(argv=None):
                         help='no lane ever slows down: every run at --realtime-factor (one '
                              'lane) or half of it (several), degraded or not; with --lanes 1 '
                              '--retries 0 the live graph\'s real-time benchmark')
+    parser.add_argument('--lockstep', action='store_true',
+                        help='run the scenarios that allow it (the rig and the processing '
+                             'nodes, no replay, fault or companion method) in one process '
+                             'each on simulated time (vlc_evaluation.lockstep): the same '
+                             'nodes and bags, no DDS, no pacing')
     parser.add_argument('--replay-bag', action='append', default=[],
                         help='also replay this sensor bag (e.g. bags/sample_80kmh) through the '
                              'processing nodes with bag_player and score it (repeatable)')
@@ -359,7 +364,7 @@ def main(argv=None):
         results = scenarios.run_protocols(groups, out, lamp_map, lanes=args.lanes,
                                           spawn=args.spawn, progress=progress,
                                           rescore=args.rescore, retries=args.retries,
-                                          fixed_pace=args.fixed_pace)
+                                          fixed_pace=args.fixed_pace, lockstep=args.lockstep)
         latency_results, live_alone = [], []
         protocols_s = time.monotonic() - started
         if args.latency:
@@ -393,7 +398,8 @@ def main(argv=None):
                 checkpoints=args.passes_checkpoints, profile=args.passes_profile,
                 localizer_params=passes_params, lanes=args.lanes, spawn=args.spawn,
                 retries=args.retries, realtime_factor=args.realtime_factor,
-                ablations=tuple(passes.ABLATIONS) if args.passes_ablations else ())
+                ablations=tuple(passes.ABLATIONS) if args.passes_ablations else (),
+                lockstep=args.lockstep)
             total += sum(len(r.get(k, ())) for t in passes_results.values()
                          for r in t.values() for k in ('static', 'dynamic')) + len(
                              passes_results) * args.passes

@@ -72,6 +72,16 @@ def param_text(value):
     return str(value)
 
 
+def ros_argv(params=None, params_files=()):
+    """A node's ``--ros-args`` arguments: its parameter files, then ``-p`` overrides."""
+    argv = ['--ros-args']
+    for params_file in params_files:
+        argv += ['--params-file', str(params_file)]
+    for key, value in (params or {}).items():
+        argv += ['-p', f'{key}:={param_text(value)}']
+    return argv
+
+
 def console_entry_points(executables):
     """``{executable: 'module:function'}`` of installed console scripts (missing: absent)."""
     wanted = set(executables)
@@ -291,11 +301,7 @@ class GraphRun:
         exe = self.install / 'lib' / package / executable
         if not exe.exists():
             raise FileNotFoundError(f'{exe} is not installed (run `make setup`)')
-        argv = ['--ros-args']
-        for params_file in params_files:
-            argv += ['--params-file', str(params_file)]
-        for key, value in (params or {}).items():
-            argv += ['-p', f'{key}:={param_text(value)}']
+        argv = ros_argv(params, params_files)
         log_path = self.log_dir / f'{log_name or name}.log'
         if self.spawner is not None and self.spawner.can_fork(executable):
             env = dict(self.env, **({NICE_ENV: str(int(nice))} if nice else {}))

@@ -161,8 +161,10 @@ def kept_state(files_dir):
 def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOINTS,
                profile='realistic', points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH,
                learn_speed_kmh=LEARN_SPEED_KMH, localizer_params=None, lanes=2,
-               spawn='fork', progress=None, retries=1, realtime_factor=1.0, ablations=()):
-    """Run the protocol; returns ``{train: {checkpoint: {'static': [...], 'dynamic':
+               spawn='fork', progress=None, retries=1, realtime_factor=1.0, ablations=(),
+               lockstep=False):
+    """Run the protocol (``lockstep``: as lockstep graphs, :mod:`.lockstep`); returns
+    ``{train: {checkpoint: {'static': [...], 'dynamic':
     [...], 'kept': {...}(, 'ablations': {variant: {'static': …, 'dynamic': …}})}}}``
     (also written to ``<out>/passes/results.json``).
     """
@@ -207,7 +209,7 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
         if not groups:
             continue
         done = scenarios.run_protocols(groups, out_dir, lamp_map, lanes=lanes, spawn=spawn,
-                                       progress=progress, retries=retries)
+                                       progress=progress, retries=retries, lockstep=lockstep)
         for t in trains:
             base = root / f'train{t}'
             if k < passes:

@@ -400,11 +400,17 @@ def health_summary(results):
               default=0.0)
     rtf = [r['scenario']['realtime_factor'] for r in results if 'scenario' in r]
     reruns = sum(r.get('attempts', 1) - 1 for r in results)
+    lockstep = sum(bool(r.get('scenario', {}).get('lockstep')) for r in results)
     text = (f'Graph health: {len(results)} runs, {reruns} rerun(s) because a node fell '
             f'behind; real-time factor {min(rtf, default=1):.2f}–{max(rtf, default=1):.2f}; '
             f'{len(flagged)} kept run(s) still had a node falling behind (camera lag > 0.1 s, '
             f'dropped frames or IMU samples; largest camera lag {lag:.2f} s).')
+    if lockstep:
+        text += (f' {lockstep} of the {len(results)} runs were lockstep graphs (the nodes in '
+                 'one process on simulated time, vlc_evaluation.lockstep: nothing there can '
+                 'fall behind; the real-time factor is not theirs).')
     return text, {'runs': len(results), 'reruns': reruns, 'degraded_runs': len(flagged),
+                  'lockstep_runs': lockstep,
                   'camera_lag_max_s': lag,
                   'realtime_factor_min': min(rtf, default=None),
                   'realtime_factor_max': max(rtf, default=None),
@@ -610,7 +616,9 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
         parts += ['', '### Lamp identification', '', table, '',
                   'Frames with the lamp identified (its own confirmed UID) by along-track '
                   'distance to the lamp:', '', by_dist]
-    live = list(static_results) + list(dynamic_results)
+    # a lockstep run has no latency (its nodes take no simulated time)
+    live = [r for r in list(static_results) + list(dynamic_results)
+            if not r.get('scenario', {}).get('lockstep')]
     if live:
         table, figures['latency'] = latency_table(live)
         parts += ['', '### Latency', '', 'Over the protocol runs above, on their parallel lanes '

@@ -23,6 +23,7 @@ Phases of one scenario (each timed, ``result['timing']``):
 """
 from dataclasses import dataclass, field
 import functools
+import json
 import logging
 import os
 import pathlib
@@ -40,6 +41,7 @@ from vlc_evaluation.graph_runner import (
     GraphRun,
     read_cpu_seconds,
     read_peak_rss_mib,
+    ros_argv,
     workspace_install,
 )
 from vlc_evaluation.latency import READOUT_S
@@ -54,7 +56,9 @@ RIG_NODES = [('vlc_stereo_camera', 'adis16488_node'),
              ('vlc_stereo_camera', 'stereo_camera_node')]
 RECORDER = ('vlc_bags', 'bag_recorder')
 PLAYER = ('vlc_bags', 'bag_player')
-EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYER]]
+LOCKSTEP = ('vlc_evaluation', 'lockstep_graph')
+EXECUTABLES = [exe for _, exe in PROCESSING_NODES + RIG_NODES + [RECORDER, PLAYER,
+                                                                      LOCKSTEP]]
 # Extra processing nodes a scenario may add (Scenario.extra_nodes: the companion methods
 # and the rig's photodiode), preloaded in the fork server too.
 EXTRA_EXECUTABLES = ['photodiode_node', 'rssi_localizer_node', 'dead_reckoning_node',
@@ -386,6 +390,116 @@ def _start_rig(graph, scenario, camera_subscribers, camera_params=None):
                 rig_files + [graph.config_file('vlc_stereo_camera', 'stereo_camera_node.yaml')])
 
 
+def _start_nodes(graph, scenario, out_dir, recorded_topics):
+    """Start the scenario's nodes on ``graph``: the rig (unless it replays a bag), the
+    recorder of ``recorded_topics`` into ``out_dir/<name>``, the processing nodes and
+    the scenario's extra nodes.
+    """
+    # (a replayed bag of a drawn installation: the receivers get its belief too)
+    belief = write_installation(scenario, out_dir)
+    recorder = {'output': str(pathlib.Path(out_dir) / scenario.name),
+                'topics': list(recorded_topics),
+                'discovery_interval_s': RECORDER_SCAN_S,
+                'flush_interval_s': RECORDER_FLUSH_S}
+    if belief:
+        recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
+                                f'seed={scenario.seed}',
+                                f'installation_seed={scenario.drawn_seed}',
+                                f'installation={out_dir / f"{scenario.name}.installation"}']
+    if not scenario.replay_bag:
+        # The rig first: the camera builds its renderer (the longest construction)
+        # while the other nodes start, and holds simulated time until the decoder,
+        # the spot locator, the probe's gate (, the recorder) subscribe to its images.
+        camera = {}
+        if belief and scenario.calibration in ('checkerboard', 'uncorrected'):
+            belief_dir = pathlib.Path(belief['vehicle_path']).parent
+            camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
+                                           str(belief_dir / 'right.yaml')]
+        _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
+                   + int('/stereo/left/image_raw' in recorded_topics), camera)
+    graph.start(*RECORDER, dict(recorder, **scenario.node_params.get('bag_recorder', {})),
+                [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
+                nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
+    for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
+        graph.start(package, exe, receiver_params(belief, scenario, exe),
+                    receiver_params_files(belief, graph, package, exe))
+    for package, exe, files in scenario.extra_nodes:
+        graph.start(package, exe, receiver_params(belief, scenario, exe),
+                    receiver_params_files(belief, graph, package, exe, files))
+
+
+class LockstepSpec(GraphRun):
+    """A :class:`GraphRun` that starts nothing: it keeps each node's start arguments as
+    the node list of a lockstep graph (:mod:`.lockstep`).
+    """
+
+    def __init__(self, log_dir, domain_id, spawner=None):
+        super().__init__(log_dir, domain_id, spawner=spawner)
+        self.nodes = []
+
+    def start(self, package, executable, params=None, params_files=(), name=None, nice=0,
+              log_name=None):
+        if (package, executable) == RECORDER:
+            # its receive times would be simulated time too: no latency to read there
+            params = dict(params or {}, record_receive_times=False)
+        self.nodes.append({'name': name or executable, 'package': package,
+                           'executable': executable,
+                           'argv': ros_argv(params, params_files)})
+
+
+def lockstep_capable(scenario):
+    """Whether ``scenario`` can run as a lockstep graph: the rig (no replayed bag), the
+    processing nodes and the recorder only (no extra node, fault or injected topic).
+    """
+    from vlc_evaluation.lockstep import NODE_CLASSES
+    return (not scenario.replay_bag and scenario.kind != 'fault'
+            and not scenario.extra_publishers
+            and all(exe in NODE_CLASSES for _, exe, _ in scenario.extra_nodes))
+
+
+def run_scenario_lockstep(scenario, out_dir, lane, recorded_topics):
+    """:func:`run_scenario` with the nodes in one process on simulated time
+    (``lockstep_graph``, :mod:`.lockstep`): the same nodes, parameters and recorded
+    bag, no DDS between them, no pacing. Returns (bag path, timing dict) as
+    :func:`run_scenario` (the phases ``started`` … ``stopped`` all within the one
+    process's run; ``cpu_s`` and ``rss_mib`` of ``lockstep_graph``).
+    """
+    if scenario.replay_bag or scenario.kind == 'fault':
+        raise ValueError(f'{scenario.name}: a lockstep graph runs the rig (no replay) and '
+                         'no fault')
+    out_dir = pathlib.Path(out_dir)
+    bag = out_dir / scenario.name
+    log_dir = out_dir / f'{scenario.name}.logs'
+    t0 = time.monotonic()
+    timing = {'problems': []}
+    spec = LockstepSpec(log_dir, lane.domain_id, spawner=lane.spawner)
+    _start_nodes(spec, scenario, out_dir, recorded_topics)
+    spec_path = log_dir / 'lockstep.json'
+    spec_path.write_text(json.dumps({'nodes': spec.nodes}, indent=1), encoding='utf-8')
+    graph = GraphRun(log_dir, lane.domain_id, spawner=lane.spawner)
+    graph.start(*LOCKSTEP, {'spec': str(spec_path)})
+    for phase in ('started', 'ready', 'sim_started'):
+        timing[phase] = round(time.monotonic() - t0, 3)
+    # simulated time at any pace: a limit as generous as the graph's at real time
+    limit = 60.0 + 3.0 * scenario.duration_s
+    code = graph.wait(LOCKSTEP[1], limit, abort=lane.abort.is_set)
+    for phase in ('camera_done', 'drained'):
+        timing[phase] = round(time.monotonic() - t0, 3)
+    codes = graph.stop_all() if code is None else {LOCKSTEP[1]: code}
+    timing['stopped'] = round(time.monotonic() - t0, 3)
+    if lane.abort.is_set():
+        raise RunAborted(scenario.name)
+    timing['cpu_s'] = read_cpu_seconds(log_dir)
+    timing['rss_mib'] = read_peak_rss_mib(log_dir)
+    timing['exit_codes'] = codes
+    bad = {n: c for n, c in codes.items() if c not in (0, None)}
+    if code is None:
+        timing['problems'].append(f'lockstep_graph still running after {limit:.0f} s')
+    if bad:
+        timing['problems'].append(f'exit codes {bad}')
+    return bag, timing
+
+
 def run_scenario(scenario, out_dir, lane, recorded_topics):
     """Run one scenario through the graph on ``lane``; returns (bag path, timing dict).
 
@@ -395,6 +509,8 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
     (``fork`` only), and ``problems`` (a list of strings: readiness timeout, a node's
     non-zero exit, simulated time not starting).
     """
+    if scenario.lockstep:
+        return run_scenario_lockstep(scenario, out_dir, lane, recorded_topics)
     from vlc_evaluation.probe import GraphProbe
     out_dir = pathlib.Path(out_dir)
     bag = out_dir / scenario.name
@@ -417,36 +533,7 @@ def run_scenario(scenario, out_dir, lane, recorded_topics):
                                           for p in graph.procs.values())
 
     try:
-        # (a replayed bag of a drawn installation: the receivers get its belief too)
-        belief = write_installation(scenario, out_dir)
-        recorder = {'output': str(bag), 'topics': list(recorded_topics),
-                    'discovery_interval_s': RECORDER_SCAN_S,
-                    'flush_interval_s': RECORDER_FLUSH_S}
-        if belief:
-            recorder['metadata'] = [f'rig_profile={scenario.rig_profile}',
-                                    f'seed={scenario.seed}',
-                                    f'installation_seed={scenario.drawn_seed}',
-                                    f'installation={out_dir / f"{scenario.name}.installation"}']
-        if not replay:
-            # The rig first: the camera builds its renderer (the longest construction)
-            # while the other nodes start, and holds simulated time until the decoder,
-            # the spot locator, the probe's gate (, the recorder) subscribe to its images.
-            camera = {}
-            if belief and scenario.calibration in ('checkerboard', 'uncorrected'):
-                belief_dir = pathlib.Path(belief['vehicle_path']).parent
-                camera['calibration_paths'] = [str(belief_dir / 'left.yaml'),
-                                               str(belief_dir / 'right.yaml')]
-            _start_rig(graph, scenario, 1 + 2 * scenario.run_processing
-                       + int('/stereo/left/image_raw' in recorded_topics), camera)
-        graph.start(*RECORDER, dict(recorder, **scenario.node_params.get('bag_recorder', {})),
-                    [graph.config_file(*RECORDER[:1], 'bag_recorder.yaml')],
-                    nice=RECORDER_NICE_LEAN if scenario.lean_recording else 0)
-        for package, exe in (PROCESSING_NODES if scenario.run_processing else []):
-            graph.start(package, exe, receiver_params(belief, scenario, exe),
-                        receiver_params_files(belief, graph, package, exe))
-        for package, exe, files in scenario.extra_nodes:
-            graph.start(package, exe, receiver_params(belief, scenario, exe),
-                        receiver_params_files(belief, graph, package, exe, files))
+        _start_nodes(graph, scenario, out_dir, recorded_topics)
         required = required_subscriptions(recorded_topics, scenario.run_processing)
         for topic, count in scenario.extra_subscriptions.items():
             required[topic] = required.get(topic, 0) + count

@@ -79,7 +79,8 @@ class Scenario:
     ``files_from`` / ``files_to``: before every attempt ``files_to`` is emptied and the
     ``*.yaml`` of ``files_from`` (if it exists) copied into it — the files a run reads and
     writes back (the localizer's kept files), so that a retried attempt starts from the
-    same files as the first, not from what the failed one wrote.
+    same files as the first, not from what the failed one wrote. ``lockstep``: the nodes
+    run in one process on simulated time (:mod:`.lockstep`) instead of as a graph.
     """
 
     name: str
@@ -107,6 +108,7 @@ class Scenario:
     installation_seed: int = 0
     files_from: str = ''
     files_to: str = ''
+    lockstep: bool = False
 
     def restore_files(self):
         """``files_to`` as a fresh copy of ``files_from``'s ``*.yaml`` (see above)."""
@@ -378,8 +380,11 @@ def _run_with_retries(scenario, bag_dir, lane, lamp_map, retries):
 
 
 def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=None,
-                  rescore=False, retries=1, fixed_pace=False):
+                  rescore=False, retries=1, fixed_pace=False, lockstep=False):
     """Run and score groups of scenarios; bags in ``out_dir/<group>/``.
+
+    ``lockstep``: every scenario that can (:func:`.runner.lockstep_capable`) runs as a
+    lockstep graph (:mod:`.lockstep`), the others as the graph.
 
     ``groups``: ``{group: [Scenario]}``. All scenarios share the ``lanes`` parallel lanes
     (longest first, so the lanes finish together); a degraded run is repeated up to
@@ -391,6 +396,10 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
     out_dir = pathlib.Path(out_dir)
     items = [(group, scenario) for group, scenarios in groups.items()
              for scenario in scenarios]
+    if lockstep:
+        from vlc_evaluation.runner import lockstep_capable
+        for _, scenario in items:
+            scenario.lockstep = lockstep_capable(scenario)
     # a group with no scenarios this time (e.g. static in `--protocol companions`) keeps
     # what an earlier run into the same folder recorded
     groups = {group: scenarios for group, scenarios in groups.items() if scenarios}
@@ -418,8 +427,10 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
                     raise FileNotFoundError(f'{bag}: no bag to rescore')
                 # how the bag was made (pace, timing, attempts) comes from the last run
                 prior = previous.get((group, scenario.name), {})
-                run = replace(scenario, realtime_factor=prior.get('scenario', {}).get(
-                    'realtime_factor', scenario.realtime_factor))
+                made = prior.get('scenario', {})
+                run = replace(scenario, realtime_factor=made.get(
+                    'realtime_factor', scenario.realtime_factor),
+                    lockstep=made.get('lockstep', scenario.lockstep))
                 result = score_scenario(bag, run, lamp_map)
                 result['timing'] = prior.get('timing', {})
                 result['attempts'] = prior.get('attempts', 1)

@@ -285,7 +285,11 @@ class StereoCameraNodeConfig:
 class StereoCameraNode(Node):
     """See the module docstring."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, start_workers=True, **kwargs):
+        """``start_workers`` False: no render and pacing threads; a driver in the same
+        process takes the frames and ticks from :meth:`sim_events` and hands them to
+        :meth:`emit` itself (``vlc_evaluation.lockstep``).
+        """
         super().__init__('stereo_camera_node', **kwargs)
         self.scenario = declare_scenario_parameters(self)
         values = {}
@@ -354,10 +358,13 @@ class StereoCameraNode(Node):
         self._done_guard = self.create_guard_condition(self._on_done)
         self.create_timer(1.0, self._publish_diagnostics,
                           clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._threads = [threading.Thread(target=self._render_loop, name='render', daemon=True),
-                         threading.Thread(target=self._pace_loop, name='pace', daemon=True)]
-        for thread in self._threads:
-            thread.start()
+        self._threads = []
+        if start_workers:
+            self._threads = [
+                threading.Thread(target=self._render_loop, name='render', daemon=True),
+                threading.Thread(target=self._pace_loop, name='pace', daemon=True)]
+            for thread in self._threads:
+                thread.start()
         self.get_logger().info(
             f'rendering {cfg.image_width}x{cfg.image_height} stereo at {cfg.fps} fps, '
             f'realtime_factor {cfg.realtime_factor}, {len(lamp_map)} lamps, '
@@ -387,18 +394,10 @@ class StereoCameraNode(Node):
         k = 0
         try:
             while not self._stop.is_set():
-                t0 = k / cfg.fps
-                if cfg.duration_s > 0.0 and t0 >= cfg.duration_s:
-                    self._put(None)
-                    return
-                start = time.perf_counter()
-                frame = self.renderer.render(k)
-                elapsed_ms = 1e3 * (time.perf_counter() - start)
-                with self._stats_lock:
-                    self._render_ms.append(elapsed_ms)
-                    self._frames_rendered += 1
-                    self._lamps_in_view = len(frame.truth)
+                frame = self.render_frame(k)
                 self._put(frame)
+                if frame is None:
+                    return
                 k += 1
                 # The put returned because the pacing took a frame, i.e. just after it
                 # published one. With the queue full again (the frames ahead are in hand)
@@ -412,6 +411,20 @@ class StereoCameraNode(Node):
             self.get_logger().error(f'rendering failed: {exc!r}')
             self.exit_code = 1
             self._put(None)
+
+    def render_frame(self, k):
+        """Frame ``k`` (its statistics counted), or None past ``duration_s``."""
+        cfg = self.config
+        if cfg.duration_s > 0.0 and k / cfg.fps >= cfg.duration_s:
+            return None
+        start = time.perf_counter()
+        frame = self.renderer.render(k)
+        elapsed_ms = 1e3 * (time.perf_counter() - start)
+        with self._stats_lock:
+            self._render_ms.append(elapsed_ms)
+            self._frames_rendered += 1
+            self._lamps_in_view = len(frame.truth)
+        return frame
 
     def _put(self, item):
         while not self._stop.is_set():
@@ -442,28 +455,7 @@ class StereoCameraNode(Node):
                     < cfg.wait_for_clock_subscribers)):
             self._stop.wait(0.05)
         wall0 = time.monotonic()
-        tick = 0
-        end_ticked = False
-        frame = None
-        frames_done = False
-        while not self._stop.is_set():
-            if frame is None and not frames_done:
-                frame = self._next_frame()
-                frames_done = frame is None
-                if self._stop.is_set():
-                    break
-            t_frame = frame.t0_s + self._readout_s if frame is not None else np.inf
-            t_tick = tick / cfg.clock_rate_hz if self.pub_clock is not None else np.inf
-            if cfg.duration_s > 0.0:
-                # ticks over [0, duration_s + clock_tail_s); with a tail, a last tick at
-                # its end, also off the j/rate grid: a follower (the IMU, duration_s +
-                # clock_tail_s) must see its last sample due
-                t_end = cfg.duration_s + cfg.clock_tail_s
-                if t_tick >= t_end:
-                    t_tick = t_end if cfg.clock_tail_s > 0.0 and not end_ticked else np.inf
-            t_next = min(t_frame, t_tick)
-            if not np.isfinite(t_next):
-                break
+        for t_next, frame in self.sim_events(self._next_frame):
             if rtf > 0.0:
                 lag = time.monotonic() - (wall0 + t_next / rtf)
                 self._lag_s = max(lag, 0.0)
@@ -475,21 +467,63 @@ class StereoCameraNode(Node):
                     self.get_logger().warn(f'simulation {lag:.2f} s behind real time',
                                            throttle_duration_sec=5.0)
                     wall0 += lag
-            if t_tick <= t_frame:
-                ns = conversions.stamp_ns(self.scenario.epoch_s, t_tick)
-                self.pub_clock.publish(ClockMsg(clock=conversions.ns_to_stamp(ns)))
-                self._sim_ns = ns
-                tick += 1
-                end_ticked = cfg.duration_s > 0.0 and t_tick >= t_end
-            else:
-                self._publish_frame(frame)
-                frame = None
+            if self._stop.is_set():
+                break
+            self.emit(t_next, frame)
         if self._stop.is_set():
             return
         # duration_s reached: let reliable subscribers receive the last frames first.
         for pub in self.pub_images:
             pub.wait_for_all_acked(Duration(seconds=2.0))
         self._done_guard.trigger()
+
+    def sim_events(self, next_frame):
+        """Clock ticks and frames in simulated-time order: ``(t_s, frame)`` with ``frame``
+        None for a ``/clock`` tick at ``t_s`` (simulated seconds), else a frame to publish
+        at ``t_s`` (its last row read out). ``next_frame()`` gives the frames in order,
+        None after the last. Ends at ``duration_s`` (and its clock tail) or on stop.
+        """
+        cfg = self.config
+        tick = 0
+        end_ticked = False
+        frame = None
+        frames_done = False
+        while not self._stop.is_set():
+            if frame is None and not frames_done:
+                frame = next_frame()
+                frames_done = frame is None
+                if self._stop.is_set():
+                    return
+            t_frame = frame.t0_s + self._readout_s if frame is not None else np.inf
+            t_tick = tick / cfg.clock_rate_hz if self.pub_clock is not None else np.inf
+            if cfg.duration_s > 0.0:
+                # ticks over [0, duration_s + clock_tail_s); with a tail, a last tick at
+                # its end, also off the j/rate grid: a follower (the IMU, duration_s +
+                # clock_tail_s) must see its last sample due
+                t_end = cfg.duration_s + cfg.clock_tail_s
+                if t_tick >= t_end:
+                    t_tick = t_end if cfg.clock_tail_s > 0.0 and not end_ticked else np.inf
+            t_next = min(t_frame, t_tick)
+            if not np.isfinite(t_next):
+                return
+            if t_tick <= t_frame:
+                tick += 1
+                end_ticked = cfg.duration_s > 0.0 and t_tick >= t_end
+                yield t_tick, None
+            else:
+                yield t_frame, frame
+                frame = None
+
+    def emit(self, t_s, frame):
+        """Publish one event of :meth:`sim_events`: the ``/clock`` tick at ``t_s`` or
+        ``frame``.
+        """
+        if frame is None:
+            ns = conversions.stamp_ns(self.scenario.epoch_s, t_s)
+            self.pub_clock.publish(ClockMsg(clock=conversions.ns_to_stamp(ns)))
+            self._sim_ns = ns
+        else:
+            self._publish_frame(frame)
 
     def _next_frame(self):
         while not self._stop.is_set():
