@@ -304,3 +304,32 @@ def test_replays_of_a_drawn_installation_have_their_own_latency_table(tmp_path):
     assert runs[0]['realistic_samples'] == 3
     assert runs[0]['realistic_decoder_processing_ms'] == pytest.approx(7.0)
     assert table.rstrip().endswith('| 35.00 / 36.96, 7.00 / – |')
+
+
+def test_lockstep_runs_are_left_out_of_latency_and_timed_apart(tmp_path):
+    phases = {'started': 0.0, 'ready': 0.0, 'sim_started': 0.0, 'camera_done': 2.0,
+              'drained': 2.0, 'stopped': 2.1}
+    static = _static_results()
+    for k, r in enumerate(static):
+        r['timing'] = dict(phases, cpu_s=({'lockstep_graph': 1.5} if k % 2 else
+                                          {'train_localizer_node': 1.0, 'bag_recorder': 0.5}))
+        r['scenario']['lockstep'] = bool(k % 2)
+        r['scenario']['duration_s'] = 2.0
+    lockstep = [r for r in static if r['scenario']['lockstep']]
+    text, figures = report.health_summary(static)
+    assert figures['lockstep_runs'] == len(lockstep) > 0
+    assert f'{len(lockstep)} of the {len(static)} runs were lockstep graphs' in text
+    report.write_report(static, [], tmp_path)
+    data = json.loads((tmp_path / 'report.json').read_text())['figures']
+    # latency over the protocol runs: the graph's only (a lockstep run takes no time)
+    assert data['latency']['runs'] == len(static) - len(lockstep)
+    assert data['timing']['cpu_s'] == {'bag_recorder': 0.5, 'train_localizer_node': 1.0}
+    assert data['timing_lockstep']['cpu_s'] == {'lockstep_graph': 1.5}
+    text = (tmp_path / 'report.md').read_text()
+    assert f'Lockstep graphs ({len(lockstep)}): Wall time per run' in text
+    # all of them lockstep: no latency table over the protocol runs at all
+    for r in static:
+        r['scenario']['lockstep'] = True
+    report.write_report(static, [], tmp_path / 'all')
+    data = json.loads((tmp_path / 'all' / 'report.json').read_text())['figures']
+    assert 'latency' not in data and 'timing' not in data and 'timing_lockstep' in data

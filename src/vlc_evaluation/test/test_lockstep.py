@@ -98,6 +98,11 @@ def test_timers_fire_on_simulated_time_in_order_and_cancel(bus):
     fired.clear()
     bus.run_timers(60_000_000)
     assert fired == [('slow', 50_000_000)]
+    # a reset restarts the period from now and drops the due time scheduled before
+    fast.reset()
+    fired.clear()
+    bus.run_timers(75_000_000)
+    assert fired == [('fast', 70_000_000), ('slow', 75_000_000)]
 
 
 def test_a_callback_publishing_runs_its_subscribers_before_the_next_event(bus):

@@ -187,11 +187,14 @@ class LocalTimer:
         self.timer_period_ns = max(int(round(period_s * NS)), MIN_TIMER_PERIOD_NS)
         self.callback = callback
         self._canceled = True
+        self.generation = 0
         if autostart:
             self.reset()
 
     def reset(self):
+        """(Re)start the period from now; a due time scheduled before is dropped."""
         self._canceled = False
+        self.generation += 1
         self.bus.schedule(self, self.bus.now_ns + self.timer_period_ns)
 
     def cancel(self):
@@ -258,13 +261,13 @@ class Bus:
     # timers
     def schedule(self, timer, due_ns):
         self._sequence += 1
-        heapq.heappush(self._timers, (due_ns, self._sequence, timer))
+        heapq.heappush(self._timers, (due_ns, self._sequence, timer, timer.generation))
 
     def run_timers(self, until_ns):
         """Fire every timer due at or before ``until_ns``, in time (then creation) order."""
         while self._timers and self._timers[0][0] <= until_ns:
-            due, _, timer = heapq.heappop(self._timers)
-            if timer.is_canceled():
+            due, _, timer, generation = heapq.heappop(self._timers)
+            if timer.is_canceled() or generation != timer.generation:
                 continue
             self.now_ns = max(self.now_ns, due)
             self.schedule(timer, due + timer.timer_period_ns)

@@ -658,9 +658,16 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
     if everything:
         text, figures['health'] = health_summary(everything)
         parts += ['', text]
-        text, figures['timing'] = timing_summary(everything)
-        if text:
-            parts += ['', text]
+        # the graph's runs and the lockstep graphs' apart: one process on simulated time
+        # costs and takes its time otherwise than a process per node paced by the clock
+        lockstep = [r for r in everything if r.get('scenario', {}).get('lockstep')]
+        graph = [r for r in everything if not r.get('scenario', {}).get('lockstep')]
+        for key, runs, label in (('timing', graph, 'Graph runs'),
+                                 ('timing_lockstep', lockstep, 'Lockstep graphs')):
+            text, summary = timing_summary(runs)
+            if text:
+                figures[key] = summary
+                parts += ['', (f'{label} ({len(runs)}): ' if lockstep else '') + text]
     if replays:
         table, figures['replay'] = replay_table(replays)
         parts += ['', '### Replayed sensor bag', '', table]
