@@ -20,8 +20,8 @@
 # The protocols' scenarios run as lockstep graphs (--lockstep: the same nodes, parameter
 # files and recorded bags, in one process per scenario on simulated time; no DDS, no
 # pacing, nothing falls behind, the same bag on every run); the latency replays, the live
-# graph alone, the companion methods and the faults run as the graph, and the latency
-# figures come only from those.
+# graph alone and the faults run as the graph, and the latency figures come only from
+# those.
 # Bags, logs and report: out/eval/ (OUT=... to change).
 set -eo pipefail
 cd "$VLC_WS"

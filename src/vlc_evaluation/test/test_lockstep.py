@@ -121,7 +121,7 @@ def test_a_callback_publishing_runs_its_subscribers_before_the_next_event(bus):
 def test_a_node_the_lockstep_graph_does_not_know_is_refused(bus):
     bus, _ = bus
     with pytest.raises(ValueError, match='cannot run in a lockstep graph'):
-        lockstep.build_node({'executable': 'curvature_node', 'argv': ['--ros-args']}, bus)
+        lockstep.build_node({'executable': 'sbs_splitter_node', 'argv': ['--ros-args']}, bus)
 
 
 def test_which_scenarios_may_run_in_lockstep():
@@ -129,8 +129,12 @@ def test_which_scenarios_may_run_in_lockstep():
     assert runner.lockstep_capable(static)
     assert not runner.lockstep_capable(replace(static, replay_bag='bags/sample_80kmh'))
     assert not runner.lockstep_capable(replace(static, kind='fault'))
-    assert not runner.lockstep_capable(replace(
+    assert runner.lockstep_capable(replace(
         static, extra_nodes=[['companion_localizers', 'curvature_node', []]]))
+    assert not runner.lockstep_capable(replace(
+        static, extra_nodes=[['vlc_camera_input', 'sbs_splitter_node', []]]))
+    assert not runner.lockstep_capable(replace(
+        static, extra_publishers={'/imu/data_raw': 1}))
 
 
 def test_the_spec_path_is_read_from_the_ros_args():

@@ -153,10 +153,10 @@ def main(argv=None):
                              'lane) or half of it (several), degraded or not; with --lanes 1 '
                              '--retries 0 the live graph\'s real-time benchmark')
     parser.add_argument('--lockstep', action='store_true',
-                        help='run the scenarios that allow it (the rig and the processing '
-                             'nodes, no replay, fault or companion method) in one process '
-                             'each on simulated time (vlc_evaluation.lockstep): the same '
-                             'nodes and bags, no DDS, no pacing')
+                        help='run the scenarios that allow it (no replay, fault or '
+                             'injected topic) in one process each on simulated time '
+                             '(vlc_evaluation.lockstep): the same nodes and bags, no DDS, '
+                             'no pacing')
     parser.add_argument('--replay-bag', action='append', default=[],
                         help='also replay this sensor bag (e.g. bags/sample_80kmh) through the '
                              'processing nodes with bag_player and score it (repeatable)')

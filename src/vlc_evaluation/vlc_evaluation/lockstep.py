@@ -60,6 +60,12 @@ NODE_CLASSES = {
     'spot_locator_node': ('spot_locator.spot_locator_node', 'SpotLocatorNode'),
     'train_localizer_node': ('train_localizer.train_localizer_node', 'TrainLocalizerNode'),
     'bag_recorder': ('vlc_bags.recorder_node', 'BagRecorderNode'),
+    # the companion methods and the rig's photodiode (which follows /clock)
+    'photodiode_node': ('vlc_stereo_camera.photodiode_node', 'PhotodiodeNode'),
+    'rssi_localizer_node': ('companion_localizers.rssi_localizer_node', 'RssiLocalizerNode'),
+    'dead_reckoning_node': ('companion_localizers.dead_reckoning_node', 'DeadReckoningNode'),
+    'ins_beacon_node': ('companion_localizers.ins_beacon_node', 'InsBeaconNode'),
+    'curvature_node': ('companion_localizers.curvature_node', 'CurvatureNode'),
 }
 #: Called on a node before it is destroyed (the graph's ``run_node(stop=...)``).
 STOP_HOOKS = {'train_localizer_node': 'save_kept', 'bag_recorder': 'close'}
@@ -343,11 +349,14 @@ class _SimSteadyClock:
         return SimpleNamespace(nanoseconds=self._bus.now_ns)
 
 
-def _on_sim_time(node, executable, bus):
-    """Point a node's own wall- or steady-clock readings at simulated time."""
-    if executable == 'train_localizer_node':
+def _on_sim_time(node, bus):
+    """Point a node's own steady-clock readings at simulated time: its ``_steady``
+    clock (the localizers' frame joiners and IMU pacer) and ``_monotonic`` (the spot
+    locator's odometry age).
+    """
+    if hasattr(node, '_steady'):
         node._steady = _SimSteadyClock(bus)
-    elif executable == 'spot_locator_node':
+    if hasattr(node, '_monotonic'):
         node._monotonic = lambda: bus.now_ns / NS
 
 
@@ -364,7 +373,7 @@ def build_node(spec, bus):
     if executable == 'stereo_camera_node':
         kwargs['start_workers'] = False
     node = cls(**kwargs)
-    _on_sim_time(node, executable, bus)
+    _on_sim_time(node, bus)
     return node
 
 

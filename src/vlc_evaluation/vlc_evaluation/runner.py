@@ -448,8 +448,8 @@ class LockstepSpec(GraphRun):
 
 
 def lockstep_capable(scenario):
-    """Whether ``scenario`` can run as a lockstep graph: the rig (no replayed bag), the
-    processing nodes and the recorder only (no extra node, fault or injected topic).
+    """Whether ``scenario`` can run as a lockstep graph: the rig (no replayed bag), no
+    fault or injected topic, and only nodes :data:`.lockstep.NODE_CLASSES` can build.
     """
     from vlc_evaluation.lockstep import NODE_CLASSES
     return (not scenario.replay_bag and scenario.kind != 'fault'
