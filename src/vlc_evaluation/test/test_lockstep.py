@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import pytest
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import HistoryPolicy, QoSProfile
 from sensor_msgs.msg import Imu
 from std_msgs.msg import String
 
@@ -42,6 +42,8 @@ def test_a_message_reaches_each_subscription_as_its_own_copy_in_publication_orde
     b.create_subscription(Imu, '/imu/data_raw', got.append, 10)
     b.create_subscription(Imu, 'imu/data_raw', lambda m, info: infos.append(info), 10)
     raw = PolledSubscription(b, Imu, 'imu/data_raw', QoSProfile(depth=3), raw=True)
+    every = PolledSubscription(b, Imu, 'imu/data_raw',
+                               QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL))
     msg = Imu()
     for k in range(5):
         # the ADIS node refills one message per sample: each delivery must be a copy
@@ -57,7 +59,8 @@ def test_a_message_reaches_each_subscription_as_its_own_copy_in_publication_orde
     taken = raw.take_all()
     assert len(taken) == 3 and all(isinstance(t, bytes) for t in taken)
     assert raw.take_all() == []
-    assert pub.get_subscription_count() == 3
+    assert [m.header.stamp.sec for m in every.take_all()] == [0, 1, 2, 3, 4]   # keep-all
+    assert pub.get_subscription_count() == 4
     assert ('/imu/data_raw', ['sensor_msgs/msg/Imu']) in bus.topic_names_and_types()
     assert [p.qos_profile.depth for p in bus.publishers_info('/imu/data_raw')] == [10]
     with pytest.raises(TypeError):

@@ -44,6 +44,7 @@ import contextlib
 import heapq
 import importlib
 import inspect
+import itertools
 import json
 import pathlib
 import sys
@@ -76,14 +77,18 @@ NS = 1_000_000_000
 MIN_TIMER_PERIOD_NS = 100_000
 
 
-def _depth(qos):
-    depth = qos if isinstance(qos, int) else getattr(qos, 'depth', 0)
-    return max(int(depth or 0), 1)
-
-
 def _qos_profile(qos):
     from rclpy.qos import QoSProfile
     return QoSProfile(depth=qos) if isinstance(qos, int) else qos
+
+
+def _queue_length(qos):
+    """A subscription queue's length: its keep-last depth (None, unbounded: keep-all)."""
+    from rclpy.qos import HistoryPolicy
+    profile = _qos_profile(qos)
+    if profile.history == HistoryPolicy.KEEP_ALL:
+        return None
+    return max(int(profile.depth), 1)
 
 
 def _type_name(msg_type):
@@ -131,7 +136,7 @@ class LocalSubscription:
         self.polled = polled
         self.callback = callback
         self.with_info = not polled and _takes_info(callback)
-        self.queue = collections.deque(maxlen=_depth(qos))
+        self.queue = collections.deque(maxlen=_queue_length(qos))
         self.handle = _Handle(self)
 
     def deliver(self, data, stamp_ns):
@@ -143,13 +148,13 @@ class LocalSubscription:
 
     def run_callback(self):
         """The executor's turn for this subscription: its oldest message, if any left."""
-        if not self.queue:
+        taken = self.handle.take_message(self.msg_type, self.raw)
+        if taken is None:
             return
-        msg, stamp_ns = self.queue.popleft()
         if self.with_info:
-            self.callback(msg, {'source_timestamp': stamp_ns, 'received_timestamp': stamp_ns})
+            self.callback(*taken)
         else:
-            self.callback(msg)
+            self.callback(taken[0])
 
     def destroy(self):
         self.bus.unsubscribe(self)
@@ -238,7 +243,7 @@ class Bus:
         self.publishers = collections.defaultdict(list)
         self.pending = collections.deque()
         self.now_ns = 0             # simulated time since the start (t = 0)
-        self._timers = []           # heap of (due_ns, sequence, timer)
+        self._timers = []           # heap of (due_ns, sequence, timer, generation)
         self._sequence = 0
 
     # topics
@@ -326,8 +331,10 @@ def local_entities(bus):
             bus.topic_names_and_types(),
         'get_publishers_info_by_topic': lambda node, topic, no_mangle=False:
             bus.publishers_info(topic),
-        'count_subscribers': lambda node, topic: len(bus.subs.get(topic, ())),
-        'count_publishers': lambda node, topic: len(bus.publishers.get(topic, ())),
+        'count_subscribers': lambda node, topic:
+            len(bus.subs.get(node.resolve_topic_name(topic), ())),
+        'count_publishers': lambda node, topic:
+            len(bus.publishers.get(node.resolve_topic_name(topic), ())),
     }
     saved = {name: Node.__dict__[name] for name in patched}
     for name, function in patched.items():
@@ -398,7 +405,7 @@ def run(spec, log=print):
                 raise ValueError(f'a lockstep graph needs one stereo_camera_node, not '
                                  f'{len(cameras)}')
             camera = cameras[0]
-            frames = iter(range(sys.maxsize))
+            frames = itertools.count()
             events = 0
             bus.drain()
             for t_s, frame in camera.sim_events(lambda: camera.render_frame(next(frames))):

@@ -393,6 +393,11 @@ def latency_runs_table(out_dir):
     return '\n'.join(rows), runs
 
 
+def _lockstep(result):
+    """Whether ``result`` is of a lockstep graph (:mod:`.lockstep`), not the graph's."""
+    return bool(result.get('scenario', {}).get('lockstep'))
+
+
 def health_summary(results):
     """How the runs went: reruns, real-time factors, runs still degraded."""
     flagged = [r for r in results if r.get('health', {}).get('degraded')]
@@ -400,7 +405,7 @@ def health_summary(results):
               default=0.0)
     rtf = [r['scenario']['realtime_factor'] for r in results if 'scenario' in r]
     reruns = sum(r.get('attempts', 1) - 1 for r in results)
-    lockstep = sum(bool(r.get('scenario', {}).get('lockstep')) for r in results)
+    lockstep = sum(_lockstep(r) for r in results)
     text = (f'Graph health: {len(results)} runs, {reruns} rerun(s) because a node fell '
             f'behind; real-time factor {min(rtf, default=1):.2f}–{max(rtf, default=1):.2f}; '
             f'{len(flagged)} kept run(s) still had a node falling behind (camera lag > 0.1 s, '
@@ -617,8 +622,7 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
                   'Frames with the lamp identified (its own confirmed UID) by along-track '
                   'distance to the lamp:', '', by_dist]
     # a lockstep run has no latency (its nodes take no simulated time)
-    live = [r for r in list(static_results) + list(dynamic_results)
-            if not r.get('scenario', {}).get('lockstep')]
+    live = [r for r in list(static_results) + list(dynamic_results) if not _lockstep(r)]
     if live:
         table, figures['latency'] = latency_table(live)
         parts += ['', '### Latency', '', 'Over the protocol runs above, on their parallel lanes '
@@ -660,8 +664,8 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
         parts += ['', text]
         # the graph's runs and the lockstep graphs' apart: one process on simulated time
         # costs and takes its time otherwise than a process per node paced by the clock
-        lockstep = [r for r in everything if r.get('scenario', {}).get('lockstep')]
-        graph = [r for r in everything if not r.get('scenario', {}).get('lockstep')]
+        lockstep = [r for r in everything if _lockstep(r)]
+        graph = [r for r in everything if not _lockstep(r)]
         for key, runs, label in (('timing', graph, 'Graph runs'),
                                  ('timing_lockstep', lockstep, 'Lockstep graphs')):
             text, summary = timing_summary(runs)

@@ -464,9 +464,9 @@ def run_scenario_lockstep(scenario, out_dir, lane, recorded_topics):
     :func:`run_scenario` (the phases ``started`` … ``stopped`` all within the one
     process's run; ``cpu_s`` and ``rss_mib`` of ``lockstep_graph``).
     """
-    if scenario.replay_bag or scenario.kind == 'fault':
-        raise ValueError(f'{scenario.name}: a lockstep graph runs the rig (no replay) and '
-                         'no fault')
+    if not lockstep_capable(scenario):
+        raise ValueError(f'{scenario.name}: cannot run as a lockstep graph (a replay, a '
+                         'fault, an injected topic or a node it cannot build)')
     out_dir = pathlib.Path(out_dir)
     bag = out_dir / scenario.name
     log_dir = out_dir / f'{scenario.name}.logs'
