@@ -127,9 +127,11 @@ def test_every_node_stops_with_exit_0_without_traceback_or_leftover_segment(
     for exe, proc in procs.items():
         out = launch.output(proc)
         if proc.returncode != 0:
+            # the log of every node that did not end with 0 (a watchdog's stacks, a
+            # fatal line), not only of one still running
             problems.append(f'{exe}: exit code {proc.returncode}'
-                            + (f', still running; its log:\n{out[-6000:]}'
-                               if proc in hung else ''))
+                            + (', still running' if proc in hung else '')
+                            + f'; its log:\n{out[-6000:]}')
         if 'Traceback' in out:
             problems.append(f'{exe}: traceback\n{out[-2000:]}')
     assert not problems, '\n'.join(problems)
