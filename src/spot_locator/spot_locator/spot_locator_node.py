@@ -138,6 +138,10 @@ NODE_PARAMETERS = (
     ('max_area_ratio', 2.0, _desc('Matching: largest spot area ratio.', 1.0, 100.0)),
     ('max_pending_stamps', 10, _desc('Unpaired images kept per side while waiting for the '
                                      'other side.', 1, 1000, integer=True)),
+    ('catch_up_pairs', 2, _desc('Complete stereo pairs processed, oldest first, when several '
+                                'waited (the node was stalled): a stall of up to this many '
+                                'frames loses none; older pairs are dropped and counted '
+                                '(superseded). 1 = only the newest.', 1, 10, integer=True)),
     ('backward_reset_s', 1.0, _desc('An image stamped more than this before the newest one '
                                     'is held as a possible outlier; time_base_confirm_count '
                                     'of them in a row (a looped bag replay) reset the stereo '
@@ -190,6 +194,7 @@ class SpotLocatorNodeConfig:
     max_disparity_px: float
     max_area_ratio: float
     max_pending_stamps: int
+    catch_up_pairs: int
     backward_reset_s: float
     forward_jump_s: float
     time_base_confirm_count: int
@@ -325,12 +330,16 @@ class SpotLocatorNode(Node):
             self._warn('odometry', 'train/odometry speed is not finite; ignored')
 
     def _on_image(self, index, msg):
-        """Pair by stamp and process the newest complete pair: the images that arrived
-        since (both subscriptions' queues) count, so a node that fell behind skips to the
-        newest pair instead of working through a backlog.
+        """Pair by stamp and process the complete pairs: the images that arrived since
+        (both subscriptions' queues) count, so a node that fell behind processes the
+        newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
+        whole backlog (vlc_common.core.stereo_pairing).
         """
         arrivals = [(index, msg)] + [(side, m) for side, sub in enumerate(self._image_subs)
                                      for m in take_pending(sub)]
+        # in stamp order, not every left then every right (as the decoder: a backlog's
+        # rights must not look like a jump back behind the newest left)
+        arrivals.sort(key=lambda arrival: stamp_to_ns(arrival[1].header.stamp))
         for side, image in arrivals:
             for event in self._pairing.add(side, stamp_to_ns(image.header.stamp), image):
                 if event == 'reset':
@@ -344,15 +353,12 @@ class SpotLocatorNode(Node):
                     self._warn('stamp_outlier', 'an image stamped far from the stream (beyond '
                                'backward_reset_s before or forward_jump_s after the newest) '
                                'dropped')
-        pair = self._pairing.newest_pair()
-        if pair is None:
-            return
-        _, left_msg, right_msg = pair
-        try:
-            self._process(left_msg, right_msg)
-        except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node
-            self._count('failed')
-            self._warn('failed', f'frame processing failed, skipped: {exc!r}')
+        for _, left_msg, right_msg in self._pairing.complete_pairs(self.config.catch_up_pairs):
+            try:
+                self._process(left_msg, right_msg)
+            except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node
+                self._count('failed')
+                self._warn('failed', f'frame processing failed, skipped: {exc!r}')
 
     # ------------------------------------------------------------ processing
     def _process(self, left_msg, right_msg):

@@ -263,11 +263,12 @@ def test_a_stamp_jumping_back_resets_the_pairing_and_the_replay_is_processed(har
     assert not h.node._pairing._pending
 
 
-def test_a_node_that_fell_behind_skips_to_the_newest_pair(harness):
-    """Four pairs waiting at once (the node was busy): only the newest is located, the
-    three older ones are dropped and counted; nothing queues up.
+@pytest.mark.parametrize('catch_up, located', [(2, (12, 13)), (1, (13,))])
+def test_a_node_that_fell_behind_catches_up_its_newest_pairs(harness, catch_up, located):
+    """Four pairs waiting at once (the node was busy): the newest ``catch_up_pairs`` are
+    located, oldest first; the older ones are dropped and counted; nothing queues up.
     """
-    h = harness()
+    h = harness(catch_up_pairs=catch_up)
     h.send_infos()
     left, right = _scene(seed=5)
     lf, rf = 'camera_left_optical_frame', 'camera_right_optical_frame'
@@ -275,12 +276,13 @@ def test_a_node_that_fell_behind_skips_to_the_newest_pair(harness):
         h.pub_img[0].publish(_image(left, k, lf))
         h.pub_img[1].publish(_image(right, k, rf))
     time.sleep(0.5)                     # delivered while the node does not spin
-    assert h.spin_until(lambda: h.clouds)
+    assert h.spin_until(lambda: len(h.clouds) >= len(located))
     h.spin_until(lambda: False, timeout_s=0.3)
     assert [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in h.clouds] == [
-        EPOCH_NS + 13 * FRAME_NS]
+        EPOCH_NS + k * FRAME_NS for k in located]
     stats = h.stats()
-    assert stats['superseded'] == '6' and stats['frames'] == '1'
+    assert stats['superseded'] == str(2 * (4 - len(located)))
+    assert stats['frames'] == str(len(located))
 
 
 def test_odometry_speed_sets_the_blur_length(harness):

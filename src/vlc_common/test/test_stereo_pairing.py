@@ -1,4 +1,6 @@
 """Stereo pairing by stamp: the newest complete pair, everything older dropped and counted."""
+import pytest
+
 from vlc_common.core.stereo_pairing import StereoPairing
 
 MS = 1_000_000
@@ -26,6 +28,32 @@ def test_a_backlog_collapses_to_the_newest_pair():
     assert (p.stats.superseded, p.stats.unpaired) == (4, 1)
     p.add(1, 4 * 33 * MS, 'R4')
     assert p.newest_pair() == (132 * MS, 'L4', 'R4')
+
+
+def test_a_short_backlog_is_caught_up_oldest_first_and_a_longer_one_cut_to_it():
+    """With two pairs of catch-up, a stall of two frames costs nothing: both pairs are
+    handed over, oldest first; a backlog of four keeps its newest two, the two older
+    pairs superseded and a lone half between the kept ones unpaired.
+    """
+    p = StereoPairing()
+    for k in (1, 2):
+        p.add(0, k * 33 * MS, f'L{k}')
+        p.add(1, k * 33 * MS, f'R{k}')
+    assert p.complete_pairs(2) == [(33 * MS, 'L1', 'R1'), (66 * MS, 'L2', 'R2')]
+    assert (p.stats.superseded, p.stats.unpaired) == (0, 0)
+    assert p.complete_pairs(2) == []
+    for k in (3, 4, 5, 6):
+        p.add(0, k * 33 * MS, f'L{k}')
+        p.add(1, k * 33 * MS, f'R{k}')
+    p.add(0, 5 * 33 * MS + MS, 'lone')          # between the two kept pairs
+    assert p.complete_pairs(2) == [(165 * MS, 'L5', 'R5'), (198 * MS, 'L6', 'R6')]
+    assert (p.stats.superseded, p.stats.unpaired) == (4, 1)
+    assert p.add(0, 5 * 33 * MS, 'late') == ['out_of_order']
+
+
+def test_catch_up_needs_at_least_one_pair():
+    with pytest.raises(ValueError):
+        StereoPairing().complete_pairs(0)
 
 
 def test_old_stamps_are_out_of_order_and_a_sustained_jump_back_restarts():

@@ -324,3 +324,21 @@ def test_warm_up_runs_the_confirming_path_on_a_throwaway_tracker():
     lamp_map = straight_tunnel_map(count=3)
     assert warm_up(DecoderConfig(), lamp_map) == 1      # the near lamp, from the map
     assert warm_up(DecoderConfig(), None) == 1          # no map: the worked example's UID
+
+
+@pytest.mark.parametrize('catch_up, decoded', [(2, (2, 3)), (1, (3,))])
+def test_a_decoder_that_fell_behind_catches_up_its_newest_pairs(harness, catch_up, decoded):
+    """Four pairs waiting at once (the node was busy): the newest ``catch_up_pairs`` are
+    decoded, oldest first; the older ones are dropped and counted (skipped_superseded).
+    """
+    h = harness(catch_up_pairs=catch_up)
+    run = list(frames(4))
+    for stamp, left, right, _ in run:
+        h.pub[0].publish(image_msg(left, stamp))
+        h.pub[1].publish(image_msg(right, stamp, frame_id='camera_right_optical_frame'))
+    time.sleep(0.5)                     # delivered while the node does not spin
+    h.spin(1.0)
+    assert [c.header.stamp.sec * 10 ** 9 + c.header.stamp.nanosec for c in h.clouds] == [
+        run[k][0] for k in decoded]
+    values, _ = h.stats()
+    assert int(values['skipped_superseded']) == 2 * (4 - len(decoded))

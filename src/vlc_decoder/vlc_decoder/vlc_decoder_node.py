@@ -138,6 +138,10 @@ NODE_PARAMETERS = (
                                 0.05, 100.0)),
     ('max_pending_stamps', 10, _int('Unpaired image stamps kept before the oldest is '
                                     'dropped.', 1, 1000)),
+    ('catch_up_pairs', 2, _int('Complete stereo pairs decoded, oldest first, when several '
+                               'waited (the node was stalled): a stall of up to this many '
+                               'frames loses none; older pairs are dropped and counted '
+                               '(skipped_superseded). 1 = only the newest.', 1, 10)),
     ('forward_jump_s', 1.0, _float('An image stamped more than this after the newest one '
                                    'is held as a possible outlier, s.', 0.0, 3600.0)),
     ('time_base_confirm_count', 3, _int('Consecutive images of a new time base (stamped '
@@ -198,6 +202,7 @@ class VlcDecoderNode(Node):
         self.lamp_map_path = self.get_parameter('lamp_map_path').value
         self.min_depth_m = self.get_parameter('min_depth_m').value
         self.max_pending = self.get_parameter('max_pending_stamps').value
+        self.catch_up_pairs = self.get_parameter('catch_up_pairs').value
         self.hardware_id = self.get_parameter('hardware_id').value
         lamp_map = self._load_lamp_map(self.lamp_map_path)
         if self.get_parameter('warm_up').value:
@@ -280,12 +285,17 @@ class VlcDecoderNode(Node):
                                          for m in models)
 
     def _on_image(self, side, msg):
-        """Pair by stamp and decode the newest complete pair: the images that arrived
-        since (both subscriptions' queues) count, so a decoder that fell behind skips to
-        the newest pair instead of working through a backlog.
+        """Pair by stamp and decode the complete pairs: the images that arrived since
+        (both subscriptions' queues) count, so a decoder that fell behind decodes the
+        newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
+        whole backlog (vlc_common.core.stereo_pairing).
         """
         arrivals = [(side, msg)] + [(s, m) for s, sub in enumerate(self._image_subs)
                                     for m in take_pending(sub)]
+        # in stamp order, not every left then every right: after a stall the rights of
+        # a backlog would otherwise come after the newest left, more than
+        # stamp_jump_reset_s behind it, and be dropped as outliers
+        arrivals.sort(key=lambda arrival: stamp_to_ns(arrival[1].header.stamp))
         unpaired = self.pairing.stats.unpaired
         for image_side, image in arrivals:
             for event in self.pairing.add(image_side, stamp_to_ns(image.header.stamp), image):
@@ -304,11 +314,11 @@ class VlcDecoderNode(Node):
                     self._warn('stamp_outlier', 'an image stamped far from the stream '
                                '(beyond stamp_jump_reset_s before or forward_jump_s after '
                                'the newest) dropped')
-        pair = self.pairing.newest_pair()
+        pairs = self.pairing.complete_pairs(self.catch_up_pairs)
         if self.pairing.stats.unpaired > unpaired:
             self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '
                        'stereo partner dropped')
-        if pair is not None:
+        for pair in pairs:
             self._process(*pair)
 
     # ------------------------------------------------------------------ decoding

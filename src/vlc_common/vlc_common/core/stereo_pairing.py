@@ -1,10 +1,11 @@
 """Left and right images paired by their identical stamps, the newest complete pair first.
 
 Both image nodes (decoder, spot locator) take a stereo pair only once both halves have
-arrived, and when they fall behind (a busy machine, a stall) they work on the newest
-complete pair and drop every older image instead of working through a backlog: the lag
-behind the camera stays bounded by one pair's processing. Every image that is not
-processed is counted by why.
+arrived. When they fall behind (a busy machine, a stall) they work on the newest
+``catch_up_pairs`` complete pairs, oldest first, and drop every older image instead of
+working through the whole backlog: a short stall (up to ``catch_up_pairs`` frame periods)
+costs no frame, and the lag behind the camera stays bounded by that many pairs'
+processing. Every image that is not processed is counted by why.
 
 Stamps pass a :class:`~vlc_common.core.stamp_guard.StampGuard` (one for both sides)
 first: an image stamped far from the stream (1970, the far future) is held, and dropped
@@ -91,17 +92,30 @@ class StereoPairing:
         """(stamp_ns, left, right) of the newest complete pair, or None. Every image older
         than it is dropped (a complete pair as superseded, a lone half as unpaired).
         """
-        complete = [s for s, (left, right) in self._pending.items()
-                    if left is not None and right is not None]
+        pairs = self.complete_pairs(1)
+        return pairs[0] if pairs else None
+
+    def complete_pairs(self, max_pairs=1):
+        """The newest ``max_pairs`` complete pairs ``[(stamp_ns, left, right), ...]``,
+        oldest first (empty when none is complete). Every image older than the newest of
+        them that is not among them is dropped: a complete pair as superseded, a lone half
+        as unpaired (its partner would have come before the newer pair's, each side's
+        images arrive in order).
+        """
+        if max_pairs < 1:
+            raise ValueError(f'max_pairs must be >= 1, not {max_pairs}')
+        complete = sorted(s for s, (left, right) in self._pending.items()
+                          if left is not None and right is not None)
         if not complete:
-            return None
-        stamp = max(complete)
-        for old in [s for s in self._pending if s < stamp]:
+            return []
+        keep = complete[-max_pairs:]
+        kept = set(keep)
+        newest = keep[-1]
+        for old in [s for s in self._pending if s < newest and s not in kept]:
             halves = self._pending.pop(old)
             if halves[0] is not None and halves[1] is not None:
                 self.stats.superseded += 2
             else:
                 self.stats.unpaired += 1
-        left, right = self._pending.pop(stamp)
-        self.last_stamp_ns = stamp
-        return stamp, left, right
+        self.last_stamp_ns = newest
+        return [(stamp, *self._pending.pop(stamp)) for stamp in keep]
