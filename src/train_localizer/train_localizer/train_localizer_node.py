@@ -552,6 +552,10 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
         self.save_lamp_refinement(finish=True)
         self.save_disparity_map()
 
+    #: what run_node calls before destroy_node (vlc_common.process), and the lockstep
+    #: graph's driver
+    on_stop = save_kept
+
     @staticmethod
     def reacquisition_config(p):
         """ReacquisitionConfig of a parameter dict (coasting = no fix for coast_warn_s)."""
@@ -931,8 +935,7 @@ class TrainLocalizerNode(JoinedFramesNode, Node):
 
 
 def main(args=None):
-    return run_node(TrainLocalizerNode, 'train_localizer', args,
-                    stop=TrainLocalizerNode.save_kept)
+    return run_node(TrainLocalizerNode, 'train_localizer', args)
 
 
 if __name__ == '__main__':

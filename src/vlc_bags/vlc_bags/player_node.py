@@ -192,6 +192,9 @@ class BagPlayerNode(Node):
         self._stop.set()
         self._thread.join(timeout=5.0)
 
+    #: what run_node calls before destroy_node (vlc_common.process)
+    on_stop = stop
+
 
 def _play(node):
     """Spin until the bag is done (and ``exit_when_done``) or the node is stopped."""
@@ -209,7 +212,7 @@ def _play(node):
 
 def main(args=None) -> int:
     keep_large_buffers()
-    return run_node(BagPlayerNode, 'bag_player', args, spin=_play, stop=BagPlayerNode.stop,
+    return run_node(BagPlayerNode, 'bag_player', args, spin=_play,
                     startup_errors=(ReaderError,))
 
 

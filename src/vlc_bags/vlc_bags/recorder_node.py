@@ -209,10 +209,13 @@ class BagRecorderNode(Node):
         logger.info(f'bag {self.session.path} closed: {meta["message_count"]} '
                                f'messages in {len(meta["files"])} files')
 
+    #: what run_node calls before destroy_node (vlc_common.process)
+    on_stop = close
+
 
 def main(args=None) -> int:
     keep_large_buffers()
-    return run_node(BagRecorderNode, 'bag_recorder', args, stop=BagRecorderNode.close)
+    return run_node(BagRecorderNode, 'bag_recorder', args)
 
 
 if __name__ == '__main__':

@@ -124,3 +124,40 @@ def test_a_teardown_that_hangs_ends_the_process_with_its_stacks(tmp_path, ros_en
     assert proc.returncode == 1, proc.stderr
     assert time.monotonic() - start < 20.0
     assert 'Timeout' in proc.stderr and 'destroy_node' in proc.stderr
+
+
+_ON_STOP = '''
+import pathlib
+import sys
+import rclpy.node
+from vlc_common import process
+
+out = pathlib.Path(sys.argv[1])
+
+
+class Node(rclpy.node.Node):
+    def on_stop(self):
+        out.write_text(out.read_text() + 'class ')
+
+
+out.write_text('')
+code = process.run_node(lambda: Node('on_stop'), 'on_stop', spin=lambda node: 0)
+process.run_node(lambda: Node('on_stop'), 'on_stop', spin=lambda node: 0,
+                 stop=lambda node: out.write_text(out.read_text() + 'given'))
+raise SystemExit(code)
+'''
+
+
+def test_run_node_calls_the_node_class_on_stop_unless_given_another(tmp_path, ros_env):
+    """The stop a node class names (on_stop: the localizer's kept files, the recorder's
+    bag) runs before destroy_node, as the lockstep graph's driver also calls it; a
+    ``stop`` given to run_node replaces it.
+    """
+    import subprocess
+    import sys
+    script, out = tmp_path / 'on_stop.py', tmp_path / 'calls.txt'
+    script.write_text(_ON_STOP)
+    proc = subprocess.run([sys.executable, str(script), str(out)], capture_output=True,
+                          text=True, timeout=60.0, env=ros_env)
+    assert proc.returncode == 0, proc.stderr
+    assert out.read_text() == 'class given'

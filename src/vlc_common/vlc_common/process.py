@@ -191,7 +191,9 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
         (default: the graph's executor, ``vlc_common.executor``, until SIGINT, SIGTERM
         or an external shutdown).
     stop : callable(node), optional
-        Called before ``destroy_node`` (flush files, stop threads).
+        Called before ``destroy_node`` (flush files, stop threads); default: the node
+        class's ``on_stop`` method where it has one (the convention every driver of the
+        node classes follows: also ``vlc_evaluation.lockstep``).
     startup_errors : tuple of exception types
         Raised while building the node: a fatal log line and exit code
         :data:`EXIT_INVALID_CONFIG` (besides ParameterException, ValueError, OSError).
@@ -241,6 +243,7 @@ def run_node(make_node, name, args=None, *, spin=_spin, stop=None, startup_error
             from rclpy.signals import uninstall_signal_handlers
             uninstall_signal_handlers()
         if node is not None:
+            stop = stop if stop is not None else getattr(type(node), 'on_stop', None)
             if stop is not None:
                 stop(node)
             # A C-level timer (no GIL needed: the hang is inside rcl): stacks to the log,

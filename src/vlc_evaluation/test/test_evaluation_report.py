@@ -235,6 +235,17 @@ def test_cpu_per_simulated_second_is_the_wall_time_floor():
     assert '24 CPU-s for 12 s simulated, 2.00 CPU-s per simulated second' in text
 
 
+def test_a_lockstep_graphs_wall_time_is_its_start_its_run_and_its_stop():
+    """A lockstep run has no ready, gate or drain phase of its own: one process builds
+    its nodes and simulates the scenario (runner.run_scenario_lockstep)."""
+    runs = [{'timing': {'started': 0.01, 'ran': 2.0 + k, 'stopped': 2.1 + k,
+                        'cpu_s': {'lockstep_graph': 1.9 + k}}} for k in range(3)]
+    text, figures = report.timing_summary(runs, report.LOCKSTEP_PHASES)
+    assert text.startswith('Wall time per run (median, s): start 0.01, build and simulate '
+                           '2.99, stop 0.10, score 0.00.')
+    assert set(figures['phases_s']) == {'start', 'build and simulate', 'stop', 'score'}
+
+
 def test_latency_table_processing_median_p99_max():
     runs = [{'scenario': {'realtime_factor': 1.0},
              'latency_ms': {'exposure_to_pose': [20.0, 30.0], 'readout_wait': [12.0, 15.0],

@@ -68,8 +68,6 @@ NODE_CLASSES = {
     'ins_beacon_node': ('companion_localizers.ins_beacon_node', 'InsBeaconNode'),
     'curvature_node': ('companion_localizers.curvature_node', 'CurvatureNode'),
 }
-#: Called on a node before it is destroyed (the graph's ``run_node(stop=...)``).
-STOP_HOOKS = {'train_localizer_node': 'save_kept', 'bag_recorder': 'close'}
 #: Simulated seconds the timers run on after the camera's last event (the IMU path's
 #: polls hand on the last samples; the localizer publishes past the last frame).
 DRAIN_S = 0.5
@@ -418,10 +416,12 @@ def run(spec, log=print):
             log(f'lockstep graph: {events} camera events, simulated time '
                 f'{bus.now_ns / NS:.3f} s')
     finally:
-        for executable, node in nodes.values():
-            hook = STOP_HOOKS.get(executable)
-            if hook is not None:
-                getattr(node, hook)()
+        # what run_node does before destroy_node: the node class's on_stop (the
+        # localizer saves what it keeps, the recorder closes its bag)
+        for _, node in nodes.values():
+            on_stop = getattr(node, 'on_stop', None)
+            if on_stop is not None:
+                on_stop()
         for _, node in nodes.values():
             node.destroy_node()
         rclpy.try_shutdown()

@@ -425,10 +425,14 @@ def health_summary(results):
 PHASES = (('start', None, 'started'), ('ready', 'started', 'ready'),
           ('gate', 'ready', 'sim_started'), ('simulated run', 'sim_started', 'camera_done'),
           ('drain', 'camera_done', 'drained'), ('stop', 'drained', 'stopped'))
+#: A lockstep graph's phases (runner.run_scenario_lockstep): one process builds its nodes
+#: and simulates the scenario at once.
+LOCKSTEP_PHASES = (('start', None, 'started'), ('build and simulate', 'started', 'ran'),
+                   ('stop', 'ran', 'stopped'))
 
 
-def timing_summary(results):
-    """Where the wall time of a run goes (median per phase, s), each node's CPU
+def timing_summary(results, phase_names=PHASES):
+    """Where the wall time of a run goes (median per phase of ``phase_names``, s), each node's CPU
     (median, s) and peak RSS (median and largest, MiB) and the whole graph's (the sum of
     a run's nodes: median and largest run), over the kept attempts of ``results``.
     """
@@ -436,7 +440,7 @@ def timing_summary(results):
     if not timings:
         return '', {}
     phases = {}
-    for name, start, end in PHASES:
+    for name, start, end in phase_names:
         d = [t[end] - (t[start] if start else 0.0) for t in timings if end in t
              and (start is None or start in t)]
         phases[name] = float(np.median(d)) if d else None
@@ -666,9 +670,10 @@ def write_report(static_results, dynamic_results, out_dir, title='Accuracy', abl
         # costs and takes its time otherwise than a process per node paced by the clock
         lockstep = [r for r in everything if _lockstep(r)]
         graph = [r for r in everything if not _lockstep(r)]
-        for key, runs, label in (('timing', graph, 'Graph runs'),
-                                 ('timing_lockstep', lockstep, 'Lockstep graphs')):
-            text, summary = timing_summary(runs)
+        for key, runs, label, phase_names in (
+                ('timing', graph, 'Graph runs', PHASES),
+                ('timing_lockstep', lockstep, 'Lockstep graphs', LOCKSTEP_PHASES)):
+            text, summary = timing_summary(runs, phase_names)
             if text:
                 figures[key] = summary
                 parts += ['', (f'{label} ({len(runs)}): ' if lockstep else '') + text]

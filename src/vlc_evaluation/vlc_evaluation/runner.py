@@ -428,14 +428,19 @@ def _start_nodes(graph, scenario, out_dir, recorded_topics):
                     receiver_params_files(belief, graph, package, exe, files))
 
 
-class LockstepSpec(GraphRun):
-    """A :class:`GraphRun` that starts nothing: it keeps each node's start arguments as
-    the node list of a lockstep graph (:mod:`.lockstep`).
+class LockstepSpec:
+    """Takes :func:`_start_nodes`'s start calls in place of ``graph`` (a
+    :class:`GraphRun`) and starts nothing: it keeps each node's start arguments as the
+    node list of a lockstep graph (:mod:`.lockstep`); ``graph`` resolves the config files
+    and later starts the ``lockstep_graph`` process itself.
     """
 
-    def __init__(self, log_dir, domain_id, spawner=None):
-        super().__init__(log_dir, domain_id, spawner=spawner)
+    def __init__(self, graph):
+        self.graph = graph
         self.nodes = []
+
+    def config_file(self, package, name):
+        return self.graph.config_file(package, name)
 
     def start(self, package, executable, params=None, params_files=(), name=None, nice=0,
               log_name=None):
@@ -461,8 +466,10 @@ def run_scenario_lockstep(scenario, out_dir, lane, recorded_topics):
     """:func:`run_scenario` with the nodes in one process on simulated time
     (``lockstep_graph``, :mod:`.lockstep`): the same nodes, parameters and recorded
     bag, no DDS between them, no pacing. Returns (bag path, timing dict) as
-    :func:`run_scenario` (the phases ``started`` … ``stopped`` all within the one
-    process's run; ``cpu_s`` and ``rss_mib`` of ``lockstep_graph``).
+    :func:`run_scenario`, with the phases a lockstep run has (:data:`LOCKSTEP_PHASES`):
+    ``started`` (the process forked), ``ran`` (it exited: its nodes built, the scenario
+    simulated and the bag closed), ``stopped``; ``cpu_s`` and ``rss_mib`` of
+    ``lockstep_graph``.
     """
     if not lockstep_capable(scenario):
         raise ValueError(f'{scenario.name}: cannot run as a lockstep graph (a replay, a '
@@ -472,19 +479,17 @@ def run_scenario_lockstep(scenario, out_dir, lane, recorded_topics):
     log_dir = out_dir / f'{scenario.name}.logs'
     t0 = time.monotonic()
     timing = {'problems': []}
-    spec = LockstepSpec(log_dir, lane.domain_id, spawner=lane.spawner)
+    graph = GraphRun(log_dir, lane.domain_id, spawner=lane.spawner)
+    spec = LockstepSpec(graph)
     _start_nodes(spec, scenario, out_dir, recorded_topics)
     spec_path = log_dir / 'lockstep.json'
     spec_path.write_text(json.dumps({'nodes': spec.nodes}, indent=1), encoding='utf-8')
-    graph = GraphRun(log_dir, lane.domain_id, spawner=lane.spawner)
     graph.start(*LOCKSTEP, {'spec': str(spec_path)})
-    for phase in ('started', 'ready', 'sim_started'):
-        timing[phase] = round(time.monotonic() - t0, 3)
+    timing['started'] = round(time.monotonic() - t0, 3)
     # simulated time at any pace: a limit as generous as the graph's at real time
     limit = 60.0 + 3.0 * scenario.duration_s
     code = graph.wait(LOCKSTEP[1], limit, abort=lane.abort.is_set)
-    for phase in ('camera_done', 'drained'):
-        timing[phase] = round(time.monotonic() - t0, 3)
+    timing['ran'] = round(time.monotonic() - t0, 3)
     codes = graph.stop_all() if code is None else {LOCKSTEP[1]: code}
     timing['stopped'] = round(time.monotonic() - t0, 3)
     if lane.abort.is_set():
