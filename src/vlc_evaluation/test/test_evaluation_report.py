@@ -237,7 +237,8 @@ def test_cpu_per_simulated_second_is_the_wall_time_floor():
 
 def test_a_lockstep_graphs_wall_time_is_its_start_its_run_and_its_stop():
     """A lockstep run has no ready, gate or drain phase of its own: one process builds
-    its nodes and simulates the scenario (runner.run_scenario_lockstep)."""
+    its nodes and simulates the scenario (runner.run_scenario_lockstep).
+    """
     runs = [{'timing': {'started': 0.01, 'ran': 2.0 + k, 'stopped': 2.1 + k,
                         'cpu_s': {'lockstep_graph': 1.9 + k}}} for k in range(3)]
     text, figures = report.timing_summary(runs, report.LOCKSTEP_PHASES)
