@@ -68,6 +68,12 @@ NODE_CLASSES = {
     'ins_beacon_node': ('companion_localizers.ins_beacon_node', 'InsBeaconNode'),
     'curvature_node': ('companion_localizers.curvature_node', 'CurvatureNode'),
 }
+#: Parameters a node gets only in a lockstep graph, besides ``use_sim_time``: the image
+#: nodes' warm-up moves first-call costs off the first real frames, which in a lockstep
+#: graph take no simulated time anyway (it decodes synthetic frames on a tracker of its
+#: own, so what the nodes publish is the same).
+LOCKSTEP_PARAMETERS = {'vlc_decoder_node': ('warm_up:=false',),
+                       'spot_locator_node': ('warm_up:=false',)}
 #: Simulated seconds the timers run on after the camera's last event (the IMU path's
 #: polls hand on the last samples; the localizer publishes past the last frame).
 DRAIN_S = 0.5
@@ -374,6 +380,8 @@ def build_node(spec, bus):
     module, name = NODE_CLASSES[executable]
     cls = getattr(importlib.import_module(module), name)
     argv = list(spec['argv']) + ['-p', 'use_sim_time:=true']
+    for parameter in LOCKSTEP_PARAMETERS.get(executable, ()):
+        argv += ['-p', parameter]
     kwargs = {'cli_args': argv}
     if executable == 'stereo_camera_node':
         kwargs['start_workers'] = False

@@ -7,6 +7,8 @@ import time
 
 import yaml
 
+from vlc_common.core.config_files import SAFE_LOADER
+
 
 def read_mapping(path, error):
     """The YAML mapping in ``path``; None if the file does not exist (a first run);
@@ -17,7 +19,7 @@ def read_mapping(path, error):
     if not path.exists():
         return None
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+        data = yaml.load(path.read_text(encoding='utf-8'), Loader=SAFE_LOADER)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise error(f'{path}: does not parse: {exc}') from None
     if not isinstance(data, dict):

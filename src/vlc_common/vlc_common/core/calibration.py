@@ -34,6 +34,7 @@ from vlc_common.core.camera import (
     StereoCameraModel,
     distortion_model_of,
 )
+from vlc_common.core.config_files import SAFE_LOADER
 
 #: A baseline longer than this is taken for a file in other units than metres, m.
 MAX_PLAUSIBLE_BASELINE_M = 5.0
@@ -183,7 +184,7 @@ def _load_yaml(path):
     with open(path, encoding='utf-8') as stream:
         text = stream.read()
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=SAFE_LOADER)
     except yaml.YAMLError as exc:
         problem = ' '.join(str(exc).split())
         raise CalibrationError(path, '(file)', f'not valid YAML ({problem})') from None

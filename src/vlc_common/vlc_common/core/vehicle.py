@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from vlc_common.core.camera import mount_rotation
-from vlc_common.core.config_files import config_path
+from vlc_common.core.config_files import SAFE_LOADER, config_path
 from vlc_common.core.rotations import rpy_to_matrix
 
 PACKAGE = 'vlc_common'
@@ -171,7 +171,7 @@ class VehicleMount:
         """
         path = pathlib.Path(path)
         try:
-            data = yaml.safe_load(path.read_text(encoding='utf-8'))
+            data = yaml.load(path.read_text(encoding='utf-8'), Loader=SAFE_LOADER)
         except OSError as exc:
             raise VehicleFileError(f'{path}: cannot read: {exc.strerror}') from None
         except yaml.YAMLError as exc:

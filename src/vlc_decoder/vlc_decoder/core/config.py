@@ -3,6 +3,8 @@ from dataclasses import dataclass
 
 import yaml
 
+from vlc_common.core.config_files import SAFE_LOADER
+
 SIGNAL_TIMING_KEYS = ('row_time_s', 'exposure_s', 'chip_rate_hz', 'off_level')
 
 
@@ -102,5 +104,5 @@ def signal_timing_from_params_file(path):
     the one place it is written for the decoder, instead of repeating its numbers.
     """
     with open(path, encoding='utf-8') as stream:
-        params = yaml.safe_load(stream)['/**']['ros__parameters']
+        params = yaml.load(stream, Loader=SAFE_LOADER)['/**']['ros__parameters']
     return {key: float(params[key]) for key in SIGNAL_TIMING_KEYS if key in params}

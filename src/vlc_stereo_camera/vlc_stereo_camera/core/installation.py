@@ -40,7 +40,7 @@ import yaml
 
 from vlc_common.core.calibration import StereoCalibration, save_ros_stereo
 from vlc_common.core.camera import CameraIntrinsics, StereoCameraModel, StereoRig, mount_angles
-from vlc_common.core.config_files import SAFE_DUMPER, config_path
+from vlc_common.core.config_files import SAFE_DUMPER, SAFE_LOADER, config_path
 from vlc_common.core.lamp_map import Lamp, LampMap
 from vlc_common.core.vehicle import CameraMount, ImuMount, VehicleMount
 from vlc_stereo_camera.core.optics_truth import OpticsTruth, TrueCamera
@@ -260,7 +260,7 @@ def load_profiles(path=''):
 def _parse_profiles(path, text):
     """:func:`load_profiles` of the file ``path`` whose content is ``text``."""
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=SAFE_LOADER)
     except yaml.YAMLError as exc:
         raise ProfileError(path, '(file)', f'not valid YAML ({exc})') from None
     if not isinstance(data, dict) or not data:
