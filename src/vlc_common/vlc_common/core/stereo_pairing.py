@@ -1,4 +1,4 @@
-"""Left and right images paired by their identical stamps, the newest complete pair first.
+"""Left and right images paired by their identical stamps, the newest complete pairs first.
 
 Both image nodes (decoder, spot locator) take a stereo pair only once both halves have
 arrived. When they fall behind (a busy machine, a stall) they work on the newest
