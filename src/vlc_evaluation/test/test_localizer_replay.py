@@ -62,3 +62,35 @@ def test_localizer_replay_reruns_the_core_on_a_bag_offline(tmp_path):
     assert blind['heading_max_abs_deg'] > closed['heading_max_abs_deg']
     with pytest.raises(ValueError):
         replay.CompensatorLoop(overrides={'no_such_parameter': 1})
+
+
+def test_the_cli_gives_a_drawn_bag_the_receivers_belief_unless_told_not(tmp_path,
+                                                                        monkeypatch, capsys):
+    """A drawn-profile bag replayed with the shipped files is metres off (another
+    calibration, map and vehicle than the node had): the CLI takes the belief files
+    beside the bag, as the evaluation gave them to the node; -p overrides them,
+    --no-belief and a bag without them keep the shipped files.
+    """
+    bag = tmp_path / 'dynamic_120kmh_seed43'
+    belief = tmp_path / 'dynamic_120kmh_seed43.installation' / 'belief'
+    belief.mkdir(parents=True)
+    (belief / 'left.yaml').write_text('x')
+    (belief / 'train_localizer_node.yaml').write_text(
+        "/**:\n  ros__parameters:\n    calibration_disparity_sigma_px: 0.7\n")
+    assert replay.belief_dir(bag) == belief
+    assert replay.belief_dir(tmp_path / 'ideal_bag') is None
+    seen = []
+    monkeypatch.setattr(replay, 'camera_info_messages', lambda paths: list(paths))
+    monkeypatch.setattr(replay, 'replay', lambda b, params, loop, infos:
+                        seen.append((params, infos)))
+    monkeypatch.setattr(replay, 'score', lambda result, settle_s: {})
+    replay.main([str(bag), '-p', 'vehicle_path:=/given.yaml'])
+    params, infos = seen[-1]
+    assert params['lamp_map_path'] == str(belief / 'lamp_map.yaml')
+    assert params['vehicle_path'] == '/given.yaml'
+    assert params['calibration_disparity_sigma_px'] == 0.7
+    assert infos == [belief / 'left.yaml', belief / 'right.yaml']
+    assert 'belief' in capsys.readouterr().out
+    replay.main([str(bag), '--no-belief'])
+    params, infos = seen[-1]
+    assert params['lamp_map_path'] == replay.load_params()['lamp_map_path'] and infos is None

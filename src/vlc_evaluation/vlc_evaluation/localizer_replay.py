@@ -153,18 +153,33 @@ class ReplayResult:
     pose_cov: np.ndarray = None           # (N, 3, 3) map covariance of each pose, m²
 
 
-def replay_with_belief(bag, overrides=None):
-    """:func:`replay` of a drawn-profile bag with the belief files written beside it
-    (``<bag>.installation/belief``: calibration, vehicle, surveyed map, and the stated error
-    model where there is one) and the node's parameter defaults, ``overrides`` on top.
+def belief_dir(bag):
+    """``<bag>.installation/belief`` of a drawn-profile bag (what the receivers were given:
+    calibration, vehicle, surveyed map, the stated error model), or None when the bag has
+    none (the ideal rig's bags: the shipped files are the belief).
     """
     bag = pathlib.Path(bag)
     belief = bag.parent / (bag.name + '.installation') / 'belief'
+    return belief if (belief / 'left.yaml').exists() else None
+
+
+def belief_parameters(belief):
+    """The localizer parameters the evaluation gave the node with the belief files of
+    ``belief`` (:func:`belief_dir`): its lamp map, vehicle and stated error model.
+    """
     from vlc_evaluation.runner import read_error_model
-    stated = read_error_model(belief)
-    params = load_params(None, dict({'lamp_map_path': str(belief / 'lamp_map.yaml'),
-                                     'vehicle_path': str(belief / 'vehicle.yaml')},
-                                    **dict(stated, **(overrides or {}))))
+    return dict({'lamp_map_path': str(belief / 'lamp_map.yaml'),
+                 'vehicle_path': str(belief / 'vehicle.yaml')}, **read_error_model(belief))
+
+
+def replay_with_belief(bag, overrides=None):
+    """:func:`replay` of a drawn-profile bag with the belief files written beside it
+    (:func:`belief_dir`) and the node's parameter defaults, ``overrides`` on top.
+    """
+    belief = belief_dir(bag)
+    if belief is None:
+        raise FileNotFoundError(f'{bag}: no belief files beside it (<bag>.installation/belief)')
+    params = load_params(None, dict(belief_parameters(belief), **(overrides or {})))
     camera_info = camera_info_messages([belief / 'left.yaml', belief / 'right.yaml'])
     return replay(str(bag), params, camera_info=camera_info)
 
@@ -312,14 +327,24 @@ def main(argv=None):
                         help='camera_info_manager YAML pair the live node would get on '
                         'stereo/*/camera_info (e.g. BAG.installation/belief/left.yaml '
                         'right.yaml): intrinsics, baseline and the raw images\' R from it')
+    parser.add_argument('--no-belief', action='store_true',
+                        help="a drawn-profile bag's belief files beside it "
+                        '(BAG.installation/belief: camera_info, lamp map, vehicle, stated '
+                        'error model, as the evaluation gave the node) are used unless '
+                        'this is given; -p and --camera-info override them')
     parser.add_argument('--json', action='store_true', help='print JSON instead of text')
     args = parser.parse_args(argv)
-    try:
-        params = load_params(args.params_file or None, dict(args.overrides))
-    except (OSError, ValueError) as exc:
-        parser.error(str(exc))
     out = {}
     for bag in args.bags:
+        belief = None if args.no_belief else belief_dir(bag)
+        try:
+            params = load_params(args.params_file or None, dict(
+                belief_parameters(belief) if belief else {}, **dict(args.overrides)))
+        except (OSError, ValueError) as exc:
+            parser.error(str(exc))
+        if belief is not None and not args.json:
+            print(f'{bag}: the receivers\' belief from {belief} (--no-belief: the shipped '
+                  'files)')
         loop = None
         if args.compensator:
             try:
@@ -330,8 +355,10 @@ def main(argv=None):
                                             **dict(args.compensator_overrides)))
             except (OSError, ValueError) as exc:
                 parser.error(str(exc))
+        camera_info = args.camera_info or (
+            [belief / 'left.yaml', belief / 'right.yaml'] if belief else None)
         try:
-            infos = camera_info_messages(args.camera_info) if args.camera_info else None
+            infos = camera_info_messages(camera_info) if camera_info else None
         except (OSError, ValueError) as exc:
             parser.error(str(exc))
         out[bag] = score(replay(bag, params, loop, infos), args.settle_s)
