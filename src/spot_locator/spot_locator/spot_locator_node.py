@@ -337,22 +337,19 @@ class SpotLocatorNode(Node):
         """
         arrivals = [(index, msg)] + [(side, m) for side, sub in enumerate(self._image_subs)
                                      for m in take_pending(sub)]
-        # in stamp order, not every left then every right (as the decoder: a backlog's
-        # rights must not look like a jump back behind the newest left)
-        arrivals.sort(key=lambda arrival: stamp_to_ns(arrival[1].header.stamp))
-        for side, image in arrivals:
-            for event in self._pairing.add(side, stamp_to_ns(image.header.stamp), image):
-                if event == 'reset':
-                    self._warn('stamp_reset', 'image stamps jumped back by more than '
-                               'backward_reset_s for time_base_confirm_count images; stereo '
-                               'pairing reset')
-                elif event == 'out_of_order':
-                    self._warn('out_of_order', 'an image stamp is not newer than the last '
-                               'paired stamp; skipped')
-                elif event == 'outlier':
-                    self._warn('stamp_outlier', 'an image stamped far from the stream (beyond '
-                               'backward_reset_s before or forward_jump_s after the newest) '
-                               'dropped')
+        for event in self._pairing.add_many((side, stamp_to_ns(m.header.stamp), m)
+                                            for side, m in arrivals):
+            if event == 'reset':
+                self._warn('stamp_reset', 'image stamps jumped back by more than '
+                           'backward_reset_s for time_base_confirm_count images; stereo '
+                           'pairing reset')
+            elif event == 'out_of_order':
+                self._warn('out_of_order', 'an image stamp is not newer than the last '
+                           'paired stamp; skipped')
+            elif event == 'outlier':
+                self._warn('stamp_outlier', 'an image stamped far from the stream (beyond '
+                           'backward_reset_s before or forward_jump_s after the newest) '
+                           'dropped')
         for _, left_msg, right_msg in self._pairing.complete_pairs(self.config.catch_up_pairs):
             try:
                 self._process(left_msg, right_msg)

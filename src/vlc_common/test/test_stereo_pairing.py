@@ -51,6 +51,24 @@ def test_a_short_backlog_is_caught_up_oldest_first_and_a_longer_one_cut_to_it():
     assert p.add(0, 5 * 33 * MS, 'late') == ['out_of_order']
 
 
+def test_images_taken_together_are_offered_in_stamp_order():
+    """A three-frame backlog taken every left first, then every right: offered in stamp
+    order, the older rights are not 66 ms behind the newest left (beyond a 50 ms
+    jump-back guard, the decoder's) and every pair completes; one by one as given, they
+    are held and dropped as outliers.
+    """
+    backlog = ([(0, k * 33 * MS, f'L{k}') for k in (1, 2, 3)]
+               + [(1, k * 33 * MS, f'R{k}') for k in (1, 2, 3)])
+    p = StereoPairing(backward_reset_ns=50 * MS)
+    assert p.add_many(backlog) == []
+    assert [pair[0] for pair in p.complete_pairs(3)] == [33 * MS, 66 * MS, 99 * MS]
+    given = StereoPairing(backward_reset_ns=50 * MS)
+    for image in backlog:
+        given.add(*image)
+    given.add(0, 4 * 33 * MS, 'L4')           # the stream goes on: held ones dropped
+    assert given.stats.stamp_outliers > 0
+
+
 def test_catch_up_needs_at_least_one_pair():
     with pytest.raises(ValueError):
         StereoPairing().complete_pairs(0)

@@ -292,28 +292,24 @@ class VlcDecoderNode(Node):
         """
         arrivals = [(side, msg)] + [(s, m) for s, sub in enumerate(self._image_subs)
                                     for m in take_pending(sub)]
-        # in stamp order, not every left then every right: after a stall the rights of
-        # a backlog would otherwise come after the newest left, more than
-        # stamp_jump_reset_s behind it, and be dropped as outliers
-        arrivals.sort(key=lambda arrival: stamp_to_ns(arrival[1].header.stamp))
         unpaired = self.pairing.stats.unpaired
-        for image_side, image in arrivals:
-            for event in self.pairing.add(image_side, stamp_to_ns(image.header.stamp), image):
-                if event == 'reset':
-                    # a looped bag or a restarted camera: start afresh rather than skip
-                    # every frame until the stamps catch up, and never mix fragments
-                    # across the jump
-                    self._warn('stamp_jump', 'image stamps jumped back by more than '
-                               'stamp_jump_reset_s for time_base_confirm_count images: lamp '
-                               'tracks reset')
-                    self.tracker.reset()
-                elif event == 'out_of_order':
-                    self._warn('out_of_order', 'an image stamp is not after the last decoded '
-                               'frame: skipped')
-                elif event == 'outlier':
-                    self._warn('stamp_outlier', 'an image stamped far from the stream '
-                               '(beyond stamp_jump_reset_s before or forward_jump_s after '
-                               'the newest) dropped')
+        for event in self.pairing.add_many((s, stamp_to_ns(m.header.stamp), m)
+                                           for s, m in arrivals):
+            if event == 'reset':
+                # a looped bag or a restarted camera: start afresh rather than skip
+                # every frame until the stamps catch up, and never mix fragments
+                # across the jump
+                self._warn('stamp_jump', 'image stamps jumped back by more than '
+                           'stamp_jump_reset_s for time_base_confirm_count images: lamp '
+                           'tracks reset')
+                self.tracker.reset()
+            elif event == 'out_of_order':
+                self._warn('out_of_order', 'an image stamp is not after the last decoded '
+                           'frame: skipped')
+            elif event == 'outlier':
+                self._warn('stamp_outlier', 'an image stamped far from the stream '
+                           '(beyond stamp_jump_reset_s before or forward_jump_s after '
+                           'the newest) dropped')
         pairs = self.pairing.complete_pairs(self.catch_up_pairs)
         if self.pairing.stats.unpaired > unpaired:
             self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '

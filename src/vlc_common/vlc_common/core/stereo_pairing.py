@@ -88,6 +88,18 @@ class StereoPairing:
                 self.stats.unpaired += sum(h is not None for h in old)
         return events
 
+    def add_many(self, images):
+        """Offer images taken together, ``(side, stamp_ns, item)`` each (what arrived on
+        both sides while the node was busy), in stamp order rather than as given: every
+        left before every right would put a backlog's older rights behind the newest left
+        by more than a small ``backward_reset_ns`` and hold them as outliers. Returns the
+        events of :meth:`add`, in order.
+        """
+        events = []
+        for side, stamp_ns, item in sorted(images, key=lambda image: image[1]):
+            events += self.add(side, stamp_ns, item)
+        return events
+
     def newest_pair(self):
         """(stamp_ns, left, right) of the newest complete pair, or None. Every image older
         than it is dropped (a complete pair as superseded, a lone half as unpaired).
