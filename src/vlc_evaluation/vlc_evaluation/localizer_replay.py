@@ -160,7 +160,12 @@ def belief_dir(bag):
     """
     bag = pathlib.Path(bag)
     belief = bag.parent / (bag.name + '.installation') / 'belief'
-    return belief if (belief / 'left.yaml').exists() else None
+    return belief if belief_camera_files(belief)[0].exists() else None
+
+
+def belief_camera_files(belief):
+    """The (left, right) camera_info_manager files of ``belief`` (:func:`belief_dir`)."""
+    return [belief / 'left.yaml', belief / 'right.yaml']
 
 
 def belief_parameters(belief):
@@ -180,8 +185,7 @@ def replay_with_belief(bag, overrides=None):
     if belief is None:
         raise FileNotFoundError(f'{bag}: no belief files beside it (<bag>.installation/belief)')
     params = load_params(None, dict(belief_parameters(belief), **(overrides or {})))
-    camera_info = camera_info_messages([belief / 'left.yaml', belief / 'right.yaml'])
-    return replay(str(bag), params, camera_info=camera_info)
+    return replay(str(bag), params, camera_info=camera_info_messages(belief_camera_files(belief)))
 
 
 def camera_info_messages(paths):
@@ -355,8 +359,7 @@ def main(argv=None):
                                             **dict(args.compensator_overrides)))
             except (OSError, ValueError) as exc:
                 parser.error(str(exc))
-        camera_info = args.camera_info or (
-            [belief / 'left.yaml', belief / 'right.yaml'] if belief else None)
+        camera_info = args.camera_info or (belief_camera_files(belief) if belief else None)
         try:
             infos = camera_info_messages(camera_info) if camera_info else None
         except (OSError, ValueError) as exc:
