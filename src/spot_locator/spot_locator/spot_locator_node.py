@@ -66,15 +66,23 @@ from vlc_common.camera_info import CameraInfoKeeper
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import take_pending
+from vlc_common.polled import image_arrivals
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
 )
-from vlc_common.stamps import stamp_to_ns
 from vlc_common.throttled_log import ThrottledWarnings
 
 _WARN_PERIOD_S = 2.0
+#: the stereo pairing's events (StereoPairing.add) → throttled warning (key, text)
+PAIRING_WARNINGS = {
+    'reset': ('stamp_reset', 'image stamps jumped back by more than backward_reset_s for '
+              'time_base_confirm_count images; stereo pairing reset'),
+    'out_of_order': ('out_of_order', 'an image stamp is not newer than the last paired '
+                     'stamp; skipped'),
+    'outlier': ('stamp_outlier', 'an image stamped far from the stream (beyond '
+                'backward_reset_s before or forward_jump_s after the newest) dropped'),
+}
 
 
 _STR = ParameterType.PARAMETER_STRING
@@ -335,21 +343,8 @@ class SpotLocatorNode(Node):
         newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
         whole backlog (vlc_common.core.stereo_pairing).
         """
-        arrivals = [(index, msg)] + [(side, m) for side, sub in enumerate(self._image_subs)
-                                     for m in take_pending(sub)]
-        for event in self._pairing.add_many((side, stamp_to_ns(m.header.stamp), m)
-                                            for side, m in arrivals):
-            if event == 'reset':
-                self._warn('stamp_reset', 'image stamps jumped back by more than '
-                           'backward_reset_s for time_base_confirm_count images; stereo '
-                           'pairing reset')
-            elif event == 'out_of_order':
-                self._warn('out_of_order', 'an image stamp is not newer than the last '
-                           'paired stamp; skipped')
-            elif event == 'outlier':
-                self._warn('stamp_outlier', 'an image stamped far from the stream (beyond '
-                           'backward_reset_s before or forward_jump_s after the newest) '
-                           'dropped')
+        for event in self._pairing.add_many(image_arrivals(index, msg, self._image_subs)):
+            self._warn(*PAIRING_WARNINGS[event])
         for _, left_msg, right_msg in self._pairing.complete_pairs(self.config.catch_up_pairs):
             try:
                 self._process(left_msg, right_msg)

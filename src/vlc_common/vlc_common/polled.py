@@ -16,6 +16,8 @@ own executor and ``rclpy.wait_for_message`` make.
 from rclpy.callback_groups import CallbackGroup
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from vlc_common.stamps import stamp_to_ns
+
 #: QoS of a 400 Hz IMU subscription: sensor data (best effort) with a deep queue. At
 #: 400 Hz a 5-sample queue loses samples whenever the process stalls for 12 ms (measured
 #: under load), and 100 (0.25 s) lost 0.75 s of the burst in which a stalled IMU caught
@@ -86,6 +88,18 @@ def take_pending(sub, limit=None, with_info=False):
                 break
             out.append(taken if with_info else taken[0])
     return out
+
+
+def image_arrivals(side, msg, subscriptions):
+    """``(side, stamp_ns, image)`` of image ``msg`` (from camera ``side``) and of every
+    image waiting in the queues of ``subscriptions`` (one per side, in side order): what
+    a stereo node's image callback offers its pairing
+    (``vlc_common.core.stereo_pairing.StereoPairing.add_many``), so that a node that fell
+    behind sees everything received so far.
+    """
+    arrivals = [(side, msg)] + [(s, m) for s, sub in enumerate(subscriptions)
+                                for m in take_pending(sub)]
+    return [(s, stamp_to_ns(m.header.stamp), m) for s, m in arrivals]
 
 
 def _never_called(msg):    # pragma: no cover - the executor never waits on the group

@@ -49,12 +49,11 @@ from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.diagnostics import diagnostic_array
-from vlc_common.polled import take_pending
+from vlc_common.polled import image_arrivals
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
 )
-from vlc_common.stamps import stamp_to_ns
 from vlc_common.throttled_log import ThrottledWarnings
 from vlc_decoder import conversions
 from vlc_decoder.core import synth
@@ -62,6 +61,15 @@ from vlc_decoder.core.config import DecoderConfig
 from vlc_decoder.core.tracker import ANOMALY, CONFIRMED, LampTracker
 
 WARN_THROTTLE_S = 2.0
+#: the stereo pairing's events (StereoPairing.add) → throttled warning (key, text)
+PAIRING_WARNINGS = {
+    'reset': ('stamp_jump', 'image stamps jumped back by more than stamp_jump_reset_s for '
+              'time_base_confirm_count images: lamp tracks reset'),
+    'out_of_order': ('out_of_order', 'an image stamp is not after the last decoded frame: '
+                     'skipped'),
+    'outlier': ('stamp_outlier', 'an image stamped far from the stream (beyond '
+                'stamp_jump_reset_s before or forward_jump_s after the newest) dropped'),
+}
 
 
 def _identity(uv):
@@ -290,26 +298,14 @@ class VlcDecoderNode(Node):
         newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
         whole backlog (vlc_common.core.stereo_pairing).
         """
-        arrivals = [(side, msg)] + [(s, m) for s, sub in enumerate(self._image_subs)
-                                    for m in take_pending(sub)]
         unpaired = self.pairing.stats.unpaired
-        for event in self.pairing.add_many((s, stamp_to_ns(m.header.stamp), m)
-                                           for s, m in arrivals):
+        for event in self.pairing.add_many(image_arrivals(side, msg, self._image_subs)):
+            self._warn(*PAIRING_WARNINGS[event])
             if event == 'reset':
                 # a looped bag or a restarted camera: start afresh rather than skip
                 # every frame until the stamps catch up, and never mix fragments
                 # across the jump
-                self._warn('stamp_jump', 'image stamps jumped back by more than '
-                           'stamp_jump_reset_s for time_base_confirm_count images: lamp '
-                           'tracks reset')
                 self.tracker.reset()
-            elif event == 'out_of_order':
-                self._warn('out_of_order', 'an image stamp is not after the last decoded '
-                           'frame: skipped')
-            elif event == 'outlier':
-                self._warn('stamp_outlier', 'an image stamped far from the stream '
-                           '(beyond stamp_jump_reset_s before or forward_jump_s after '
-                           'the newest) dropped')
         pairs = self.pairing.complete_pairs(self.catch_up_pairs)
         if self.pairing.stats.unpaired > unpaired:
             self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '
