@@ -41,6 +41,7 @@ Usage (started by :func:`.runner.run_scenario_lockstep`)::
 """
 import collections
 import contextlib
+import functools
 import heapq
 import importlib
 import inspect
@@ -52,21 +53,22 @@ from types import SimpleNamespace
 
 import cv2
 
-#: The node classes a lockstep graph can hold: executable → (module, class).
+#: The node classes a lockstep graph can hold: executable → class name; the class's module
+#: is the one the executable's installed entry point names (:func:`node_module`).
 NODE_CLASSES = {
-    'adis16488_node': ('vlc_stereo_camera.adis16488_node', 'Adis16488Node'),
-    'stereo_camera_node': ('vlc_stereo_camera.stereo_camera_node', 'StereoCameraNode'),
-    'imu_compensator_node': ('imu_compensator.imu_compensator_node', 'ImuCompensatorNode'),
-    'vlc_decoder_node': ('vlc_decoder.vlc_decoder_node', 'VlcDecoderNode'),
-    'spot_locator_node': ('spot_locator.spot_locator_node', 'SpotLocatorNode'),
-    'train_localizer_node': ('train_localizer.train_localizer_node', 'TrainLocalizerNode'),
-    'bag_recorder': ('vlc_bags.recorder_node', 'BagRecorderNode'),
+    'adis16488_node': 'Adis16488Node',
+    'stereo_camera_node': 'StereoCameraNode',
+    'imu_compensator_node': 'ImuCompensatorNode',
+    'vlc_decoder_node': 'VlcDecoderNode',
+    'spot_locator_node': 'SpotLocatorNode',
+    'train_localizer_node': 'TrainLocalizerNode',
+    'bag_recorder': 'BagRecorderNode',
     # the companion methods and the rig's photodiode (which follows /clock)
-    'photodiode_node': ('vlc_stereo_camera.photodiode_node', 'PhotodiodeNode'),
-    'rssi_localizer_node': ('companion_localizers.rssi_localizer_node', 'RssiLocalizerNode'),
-    'dead_reckoning_node': ('companion_localizers.dead_reckoning_node', 'DeadReckoningNode'),
-    'ins_beacon_node': ('companion_localizers.ins_beacon_node', 'InsBeaconNode'),
-    'curvature_node': ('companion_localizers.curvature_node', 'CurvatureNode'),
+    'photodiode_node': 'PhotodiodeNode',
+    'rssi_localizer_node': 'RssiLocalizerNode',
+    'dead_reckoning_node': 'DeadReckoningNode',
+    'ins_beacon_node': 'InsBeaconNode',
+    'curvature_node': 'CurvatureNode',
 }
 #: Parameters a node gets only in a lockstep graph, besides ``use_sim_time``: the image
 #: nodes' warm-up moves first-call costs off the first real frames, which in a lockstep
@@ -371,14 +373,29 @@ def _on_sim_time(node, bus):
         node._monotonic = lambda: bus.now_ns / NS
 
 
+@functools.cache
+def _entry_points():
+    from vlc_evaluation.graph_runner import console_entry_points
+    return console_entry_points(NODE_CLASSES)
+
+
+def node_module(executable):
+    """The module of ``executable``'s installed entry point (``module:main``): the one
+    ``ros2 run`` starts, so a lockstep graph builds the node class the graph runs.
+    """
+    try:
+        return _entry_points()[executable].partition(':')[0]
+    except KeyError:
+        raise ValueError(f'{executable}: no installed entry point (colcon build)') from None
+
+
 def build_node(spec, bus):
     """One node of ``spec`` (``executable``, ``argv``) on the bus, on simulated time."""
     executable = spec['executable']
     if executable not in NODE_CLASSES:
         raise ValueError(f'{executable} cannot run in a lockstep graph (known: '
                          f'{", ".join(sorted(NODE_CLASSES))})')
-    module, name = NODE_CLASSES[executable]
-    cls = getattr(importlib.import_module(module), name)
+    cls = getattr(importlib.import_module(node_module(executable)), NODE_CLASSES[executable])
     argv = list(spec['argv']) + ['-p', 'use_sim_time:=true']
     for parameter in LOCKSTEP_PARAMETERS.get(executable, ()):
         argv += ['-p', parameter]
