@@ -174,3 +174,61 @@ def test_kept_text_names_the_disparity_map_without_a_table_pipe():
     assert passes._kept_text(8, {'disparity_map_cells': 0,
                                  'disparity_map_mean_abs_px': float('nan')}) == (
         '8: disparity map: no cell in use yet')
+
+
+def test_cli_scores_the_passes_at_the_speeds_given(tmp_path, monkeypatch):
+    """``--passes-speeds`` and ``--passes-end-speeds`` reach the protocol (defaults:
+    passes.SPEEDS_KMH, passes.END_SPEEDS_KMH).
+    """
+    from vlc_evaluation import cli
+    given = []
+
+    class Stop(Exception):
+        pass
+
+    def run_passes(*args, **kwargs):
+        given.append((kwargs['speeds_kmh'], kwargs['end_speeds_kmh']))
+        raise Stop
+
+    monkeypatch.setattr(passes, 'run_passes', run_passes)
+    for extra, expected in (
+            ([], (list(passes.SPEEDS_KMH), list(passes.END_SPEEDS_KMH))),
+            (['--passes-speeds', '20', '120', '--passes-end-speeds'], ([20, 120], []))):
+        with pytest.raises(Stop):
+            cli.main(['--protocol', 'none', '--passes', '1', '--lockstep',
+                      '--out', str(tmp_path / 'out')] + extra)
+        assert given[-1] == expected
+
+
+def test_first_and_last_checkpoints_score_every_speed_with_the_same_seeds(tmp_path,
+                                                                            monkeypatch):
+    """Issue 17's two columns (first pass, after n passes) at every speed of
+    ``end_speeds_kmh``; the checkpoints between and the ablations at ``speeds_kmh``; a
+    speed's run has one seed at every checkpoint that scores it.
+    """
+    from vlc_evaluation import scenarios
+    groups = {}
+
+    def run_protocols(todo, *args, **kwargs):
+        groups.update(todo)
+        for name, runs in todo.items():
+            if '/pass' in name:    # what a learning pass leaves: its (empty) files folder
+                pathlib.Path(runs[0].files_to).mkdir(parents=True, exist_ok=True)
+        return {}
+
+    monkeypatch.setattr(scenarios, 'run_protocols', run_protocols)
+    passes.run_passes(tmp_path, '', trains=(5,), passes=3, checkpoints=(0, 1, 3),
+                      speeds_kmh=(40, 100), end_speeds_kmh=(20, 120),
+                      ablations=('no_refinement',))
+    speeds = {name: [s.speed_kmh for s in runs] for name, runs in groups.items()
+              if name.endswith('/dynamic')}
+    assert speeds == {'passes/train5/after00/dynamic': [20.0, 40.0, 100.0, 120.0],
+                      'passes/train5/after01/dynamic': [40.0, 100.0],
+                      'passes/train5/after03/dynamic': [20.0, 40.0, 100.0, 120.0],
+                      'passes/train5/after03/no_refinement/dynamic': [40.0, 100.0]}
+    seeds = {}
+    for name, runs in groups.items():
+        for s in runs if name.endswith('/dynamic') else ():
+            seeds.setdefault(s.speed_kmh, set()).add(s.seed)
+    assert all(len(v) == 1 for v in seeds.values()) and len(seeds) == 4
+    assert len({v.pop() for v in seeds.values()}) == 4

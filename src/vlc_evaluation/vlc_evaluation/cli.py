@@ -263,6 +263,14 @@ def main(argv=None):
     parser.add_argument('--passes-checkpoints', type=int, nargs='+',
                         default=list(passes.CHECKPOINTS),
                         help='multi-pass: passes learnt before the scored runs (0 = first pass)')
+    parser.add_argument('--passes-speeds', type=int, nargs='+',
+                        default=list(passes.SPEEDS_KMH),
+                        help='multi-pass: the speeds of the scored dynamic runs at every '
+                             'checkpoint, km/h (one run per speed)')
+    parser.add_argument('--passes-end-speeds', type=int, nargs='*',
+                        default=list(passes.END_SPEEDS_KMH),
+                        help='multi-pass: the speeds also scored at the first pass and the '
+                             'last checkpoint, km/h (none: only --passes-speeds)')
     parser.add_argument('--passes-param', action='append', default=[], metavar='NAME:=VALUE',
                         help='multi-pass: a localizer parameter for every run (YAML value), '
                              'e.g. use_self_calibration:=true')
@@ -396,8 +404,10 @@ def main(argv=None):
             passes_results = passes.run_passes(
                 out, lamp_map, trains=args.passes_trains, passes=args.passes,
                 checkpoints=args.passes_checkpoints, profile=args.passes_profile,
-                localizer_params=passes_params, lanes=args.lanes, spawn=args.spawn,
-                retries=args.retries, realtime_factor=args.realtime_factor,
+                speeds_kmh=args.passes_speeds, end_speeds_kmh=args.passes_end_speeds,
+                localizer_params=passes_params,
+                lanes=args.lanes, spawn=args.spawn, retries=args.retries,
+                realtime_factor=args.realtime_factor,
                 ablations=tuple(passes.ABLATIONS) if args.passes_ablations else (),
                 lockstep=args.lockstep)
             total += sum(len(r.get(k, ())) for t in passes_results.values()

@@ -13,8 +13,11 @@ measures what that is worth on a drawn rig profile:
   (``seed``), reading and writing the train's kept files;
 * at each *checkpoint* n (0 = the first pass: nothing kept yet; 1, 3, 10 …) the scored
   runs — static trials and dynamic runs at each speed — start from a copy of the files
-  as n learning passes left them. Their seeds are the same at every checkpoint, so two
-  checkpoints differ only in what was learnt.
+  as n learning passes left them. Their seeds are the same at every checkpoint (a
+  dynamic run's follows its speed), so two checkpoints differ only in what was learnt.
+  The first pass and the last checkpoint (issue 17's two columns) score every speed of
+  ``end_speeds_kmh`` (20–120 km/h) besides ``speeds_kmh`` (40, 100); the checkpoints
+  between, and the ablations, ``speeds_kmh`` only.
 
 Rounds: round k runs learning pass k + 1 of every train and the scored runs of
 checkpoint k, on the evaluation's lanes. Bags, logs and results in
@@ -44,6 +47,8 @@ from vlc_evaluation import ablations, budget, scenarios
 CHECKPOINTS = (0, 1, 3, 10)
 STATIC_POINTS_M = (9.0, 5.0, 2.0)
 SPEEDS_KMH = (40, 100)
+#: the speeds also scored at the first pass and the last checkpoint
+END_SPEEDS_KMH = (20, 40, 60, 80, 100, 120)
 LEARN_SPEED_KMH = 60
 LEARN_CELLS = 6
 GROUP_PREFIX = 'passes/'
@@ -108,9 +113,10 @@ def scored_runs(train, files_dir, profile='realistic', points_m=STATIC_POINTS_M,
     static = [scenarios.static_scenarios(points_m=(d,), trials=1, observe_s=observe_s,
                                          first_seed=run_seed(train, 1, i))[0]
               for i, d in enumerate(points_m)]
+    # the seed follows the speed: the same run at every checkpoint that scores it
     dynamic = [scenarios.dynamic_scenarios(speeds_kmh=(v,), runs=1, cells=cells,
-                                           first_seed=run_seed(train, 1, 100 + i))[0]
-               for i, v in enumerate(speeds_kmh)]
+                                           first_seed=run_seed(train, 1, 100 + int(v)))[0]
+               for v in speeds_kmh]
     for scenario in static + dynamic:
         scenario.rig_profile, scenario.installation_seed = profile, int(train)
         scenario.realtime_factor = realtime_factor
@@ -160,9 +166,9 @@ def kept_state(files_dir):
 
 def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOINTS,
                profile='realistic', points_m=STATIC_POINTS_M, speeds_kmh=SPEEDS_KMH,
-               learn_speed_kmh=LEARN_SPEED_KMH, localizer_params=None, lanes=2,
-               spawn='fork', progress=None, retries=1, realtime_factor=1.0, ablations=(),
-               lockstep=False):
+               end_speeds_kmh=END_SPEEDS_KMH, learn_speed_kmh=LEARN_SPEED_KMH,
+               localizer_params=None, lanes=2, spawn='fork', progress=None, retries=1,
+               realtime_factor=1.0, ablations=(), lockstep=False):
     """Run the protocol (``lockstep``: as lockstep graphs, :mod:`.lockstep`); returns
     ``{train: {checkpoint: {'static': [...], 'dynamic':
     [...], 'kept': {...}(, 'ablations': {variant: {'static': …, 'dynamic': …}})}}}``
@@ -196,8 +202,10 @@ def run_passes(out_dir, lamp_map, trains=(1, 2), passes=10, checkpoints=CHECKPOI
                     for name in (ablations if k == checkpoints[-1] else ())]
                 for name, params, fields in variants:
                     where = base / f'after{k:02d}' / name
+                    speeds = (sorted(set(speeds_kmh) | set(end_speeds_kmh))
+                              if not name and k in (0, checkpoints[-1]) else speeds_kmh)
                     static, dynamic = scored_runs(t, where / 'files', profile, points_m,
-                                                  speeds_kmh, localizer_params=params,
+                                                  speeds, localizer_params=params,
                                                   realtime_factor=realtime_factor,
                                                   kept_dir=kept)
                     for scenario in static + dynamic:
@@ -304,8 +312,10 @@ def describe(results, passes, profile, learn_speed_kmh=LEARN_SPEED_KMH,
     return (f'Rig profile `{profile}`, trains (drawn installations) '
             f'{", ".join(map(str, trains))}; {passes} learning passes at {learn_speed_kmh} '
             f'km/h each; at each checkpoint static points '
-            f'{", ".join(f"{p:g}" for p in points_m)} m and one dynamic run per speed, '
-            'with the same seeds at every checkpoint. Localizer parameters: '
+            f'{", ".join(f"{p:g}" for p in points_m)} m and one dynamic run per speed '
+            '(the first pass and the last checkpoint at every speed of the table, the '
+            'others and the ablations at the speeds they show), with the same seeds at '
+            'every checkpoint. Localizer parameters: '
             + (given or 'the defaults') + ' (and the kept files: `disparity_map_path`, '
             '`self_calibration_path`, `lamp_refinement_path`).')
 
