@@ -103,6 +103,21 @@ def test_existing_maps_load_unchanged(tmp_path):
              position_sigma_m=[0.01, -0.01, 0.01])
 
 
+def test_the_module_writes_the_shipped_maps_where_told_and_refuses_a_missing_folder(
+        tmp_path, capsys):
+    """``python -m vlc_common.core.lamp_map DIR``; run from an installed package without
+    DIR it used to fail with a traceback (its default is the source tree's config).
+    """
+    from vlc_common.core.lamp_map import main
+    assert main([str(tmp_path)]) == 0
+    name = lamp_map_file_name('straight')
+    with open(default_lamp_map_path('straight'), encoding='utf-8') as stream:
+        assert (tmp_path / name).read_text() == stream.read()
+    with pytest.raises(SystemExit) as exc:
+        main([str(tmp_path / 'missing')])
+    assert exc.value.code == 2 and 'is not a directory' in capsys.readouterr().err
+
+
 HEADER = 'line_id,lamp_id,chainage_m,lateral_m,height_m,sigma_m\n'
 
 

@@ -243,5 +243,24 @@ def write_shipped_maps(config_dir):
             config_dir / lamp_map_file_name(name))
 
 
+def main(argv=None):
+    """``python -m vlc_common.core.lamp_map [DIR]``: write the shipped maps into DIR
+    (default: the package's ``config`` folder in the source tree, which only a source
+    checkout has; an installed package's is a copy that the next build replaces).
+    """
+    import argparse
+    parser = argparse.ArgumentParser(description=main.__doc__.split('\n')[0])
+    source = pathlib.Path(__file__).resolve().parents[2] / 'config'
+    parser.add_argument('out_dir', nargs='?', default=str(source),
+                        help='directory to write lamp_map*.yaml into (default: %(default)s)')
+    args = parser.parse_args(argv)
+    if not pathlib.Path(args.out_dir).is_dir():
+        parser.error(f'{args.out_dir} is not a directory (run from a source checkout, or '
+                     'name the directory to write the maps into)')
+    write_shipped_maps(args.out_dir)
+    print(f'lamp maps written into {args.out_dir}')
+    return 0
+
+
 if __name__ == '__main__':
-    write_shipped_maps(pathlib.Path(__file__).resolve().parents[2] / 'config')
+    raise SystemExit(main())
