@@ -66,7 +66,7 @@ from vlc_common.camera_info import CameraInfoKeeper
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.core.vehicle import load_vehicle
 from vlc_common.parameters import descriptor as _desc
-from vlc_common.polled import image_arrivals
+from vlc_common.polled import pair_images
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
@@ -343,9 +343,9 @@ class SpotLocatorNode(Node):
         newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
         whole backlog (vlc_common.core.stereo_pairing).
         """
-        for event in self._pairing.add_many(image_arrivals(index, msg, self._image_subs)):
-            self._warn(*PAIRING_WARNINGS[event])
-        for _, left_msg, right_msg in self._pairing.complete_pairs(self.config.catch_up_pairs):
+        _, pairs = pair_images(self._pairing, index, msg, self._image_subs, self._warn,
+                               PAIRING_WARNINGS, self.config.catch_up_pairs)
+        for _, left_msg, right_msg in pairs:
             try:
                 self._process(left_msg, right_msg)
             except Exception as exc:  # noqa: BLE001 — one bad frame must not stop the node

@@ -102,5 +102,24 @@ def image_arrivals(side, msg, subscriptions):
     return [(s, stamp_to_ns(m.header.stamp), m) for s, m in arrivals]
 
 
+def pair_images(pairing, side, msg, subscriptions, warn, warnings, max_pairs):
+    """A stereo node's image callback: offer image ``msg`` (camera ``side``) and every
+    image waiting in ``subscriptions`` to ``pairing`` (:func:`image_arrivals`), warn
+    through ``warn(key, text)`` for each of the pairing's events (``warnings``: event →
+    (key, text)) and for images dropped with no stereo partner, and return ``(events,
+    pairs)``: the events in order and the newest ``max_pairs`` complete pairs, oldest
+    first (``StereoPairing.complete_pairs``).
+    """
+    unpaired = pairing.stats.unpaired
+    events = pairing.add_many(image_arrivals(side, msg, subscriptions))
+    for event in events:
+        warn(*warnings[event])
+    pairs = pairing.complete_pairs(max_pairs)
+    dropped = pairing.stats.unpaired - unpaired
+    if dropped > 0:
+        warn('unpaired', f'{dropped} image(s) with no stereo partner dropped')
+    return events, pairs
+
+
 def _never_called(msg):    # pragma: no cover - the executor never waits on the group
     raise AssertionError('a PolledSubscription is taken with take_all()')

@@ -49,7 +49,7 @@ from vlc_common.camera_info import CameraInfoKeeper, raw_camera_model
 from vlc_common.core.lamp_map import LampMap, resolve_lamp_map_path
 from vlc_common.core.stereo_pairing import StereoPairing
 from vlc_common.diagnostics import diagnostic_array
-from vlc_common.polled import image_arrivals
+from vlc_common.polled import pair_images
 from vlc_common.process import (
     keep_large_buffers,
     run_node,
@@ -298,18 +298,12 @@ class VlcDecoderNode(Node):
         newest ``catch_up_pairs`` pairs, oldest first, instead of working through the
         whole backlog (vlc_common.core.stereo_pairing).
         """
-        unpaired = self.pairing.stats.unpaired
-        for event in self.pairing.add_many(image_arrivals(side, msg, self._image_subs)):
-            self._warn(*PAIRING_WARNINGS[event])
-            if event == 'reset':
-                # a looped bag or a restarted camera: start afresh rather than skip
-                # every frame until the stamps catch up, and never mix fragments
-                # across the jump
-                self.tracker.reset()
-        pairs = self.pairing.complete_pairs(self.catch_up_pairs)
-        if self.pairing.stats.unpaired > unpaired:
-            self._warn('unpaired', f'{self.pairing.stats.unpaired - unpaired} image(s) with no '
-                       'stereo partner dropped')
+        events, pairs = pair_images(self.pairing, side, msg, self._image_subs, self._warn,
+                                    PAIRING_WARNINGS, self.catch_up_pairs)
+        if 'reset' in events:
+            # a looped bag or a restarted camera: start afresh rather than skip every
+            # frame until the stamps catch up, and never mix fragments across the jump
+            self.tracker.reset()
         for pair in pairs:
             self._process(*pair)
 
