@@ -296,3 +296,52 @@ def test_a_child_that_does_not_stop_leaves_its_stacks_in_its_log(tmp_path):
     assert codes == {'tool': -signal.SIGKILL}
     log = graph.log('tool')
     assert 'most recent call first' in log and 'hung_in_shutdown' in log
+
+
+def test_the_protocols_run_on_the_lamp_map_they_are_scored_against(tmp_path, capsys):
+    """``run_evaluation --lamp-map``: the rig renders the given map and the receivers are
+    given it (they used to run on the shipped map while the test points came from the
+    given one), and the static trials stand before, the dynamic runs start at and cover
+    cells of its lamps. The shipped map keeps the paper's geometry.
+    """
+    from vlc_common.core.lamp_map import LampMap, default_lamp_map_path, straight_tunnel_map
+    from vlc_evaluation import cli
+    shipped = LampMap.load(default_lamp_map_path())
+    assert scenarios.protocol_geometry(shipped) == (scenarios.LAMP_X_M,
+                                                    scenarios.DYNAMIC_START_M, 10.0)
+    path = tmp_path / 'spaced_15m.yaml'
+    straight_tunnel_map(spacing_m=15.0, count=20).save(path)
+    spaced = LampMap.load(path)
+    assert scenarios.protocol_geometry(spaced) == (55.0, 10.5, 15.0)
+
+    class Args:
+        protocol, trials, observe_s, first_seed = 'full', 1, 2.0, 1
+        speeds, runs, cells, realtime_factor = [60], 1, 6, 1.0
+
+    static, dynamic = cli.build_scenarios(Args, spaced)
+    assert {s.start_chainage_m + s.static_point_m for s in static} == {55.0}
+    default_static, default_dynamic = cli.build_scenarios(Args, shipped)
+    assert {s.start_chainage_m + s.static_point_m for s in default_static} == {50.0}
+    # four scored cells of 15 m instead of 10 m
+    assert dynamic[0].duration_s - default_dynamic[0].duration_s == pytest.approx(
+        4 * 5.0 / (60 / 3.6))
+    run = static[0]
+    scenarios.use_lamp_map(run, spaced)
+    assert {exe: p['lamp_map_path'] for exe, p in run.node_params.items()} == {
+        exe: os.path.realpath(path) for exe in scenarios.LAMP_MAP_NODES}
+    # the shipped map, a map built in code and a scenario's own rig map: left as they are
+    for lamp_map in (shipped, straight_tunnel_map(spacing_m=15.0, count=20)):
+        untouched = scenarios.static_scenarios(trials=1)[0]
+        scenarios.use_lamp_map(untouched, lamp_map)
+        assert untouched.node_params == {}
+    own = scenarios.static_scenarios(trials=1)[0]
+    own.node_params = {'stereo_camera_node': {'lamp_map_path': 'rig.yaml'}}
+    scenarios.use_lamp_map(own, spaced)
+    assert own.node_params == {'stereo_camera_node': {'lamp_map_path': 'rig.yaml'}}
+    # a map the protocols cannot stand on is refused with a message
+    short = tmp_path / 'one_lamp.yaml'
+    straight_tunnel_map(count=1).save(short)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(['--protocol', 'static', '--lamp-map', str(short), '--out',
+                  str(tmp_path / 'out')])
+    assert exc.value.code == 2 and 'two lamps or more' in capsys.readouterr().err

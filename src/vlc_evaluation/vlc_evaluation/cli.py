@@ -101,20 +101,28 @@ def latency_replays(out, rescore=False):
     return replays
 
 
-def build_scenarios(args):
+def build_scenarios(args, lamp_map=None):
+    """The static and dynamic scenarios of ``args.protocol``, placed on ``lamp_map``'s
+    lamps (:func:`.scenarios.protocol_geometry`; None: the shipped map's).
+    """
     static, dynamic = [], []
+    lamp_x, start, cell = scenarios.LAMP_X_M, scenarios.DYNAMIC_START_M, 10.0
+    if lamp_map is not None and args.protocol in ('demo', 'static', 'dynamic', 'full'):
+        lamp_x, start, cell = scenarios.protocol_geometry(lamp_map)
     if args.protocol == 'demo':
         static = scenarios.static_scenarios(points_m=(9.0, 5.0, 2.0), trials=1,
                                             observe_s=args.observe_s,
-                                            first_seed=args.first_seed)
+                                            first_seed=args.first_seed, lamp_x_m=lamp_x)
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4,
-                                              first_seed=args.first_seed)
+                                              first_seed=args.first_seed,
+                                              start_chainage_m=start, cell_m=cell)
     if args.protocol in ('static', 'full'):
         static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s,
-                                            first_seed=args.first_seed)
+                                            first_seed=args.first_seed, lamp_x_m=lamp_x)
     if args.protocol in ('dynamic', 'full'):
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=tuple(args.speeds), runs=args.runs,
-                                              cells=args.cells, first_seed=args.first_seed)
+                                              cells=args.cells, first_seed=args.first_seed,
+                                              start_chainage_m=start, cell_m=cell)
     for scenario in static + dynamic:
         scenario.realtime_factor = args.realtime_factor
     return static, dynamic
@@ -137,7 +145,10 @@ def main(argv=None):
                         help='seed of the first static trial and dynamic run (the others '
                              'follow: first, first + 1, ...); e.g. --protocol demo '
                              '--first-seed 2 runs the demo on seed 2')
-    parser.add_argument('--lamp-map', default='', help="lamp map ('' = the rig's default)")
+    parser.add_argument('--lamp-map', default='',
+                        help="lamp map ('' = the rig's default): the rig renders it, the "
+                             'receivers are given it (or its survey, on a drawn rig profile), '
+                             'the protocols stand and start at its lamps and score against it')
     parser.add_argument('--lanes', type=int, default=2,
                         help='scenarios run in parallel, each on a DDS domain of its own')
     parser.add_argument('--spawn', choices=SPAWN_MODES, default='fork',
@@ -290,7 +301,10 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
-    static, dynamic = build_scenarios(args)
+    try:
+        static, dynamic = build_scenarios(args, lamp_map)
+    except ValueError as exc:
+        parser.exit(2, f'run_evaluation: error: --lamp-map {args.lamp_map}: {exc}\n')
     groups = {'static': static, 'dynamic': dynamic}
     if args.replay_bag:
         groups['replay'] = [scenarios.replay_scenario(bag, args.realtime_factor)

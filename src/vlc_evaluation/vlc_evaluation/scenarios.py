@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, replace
 import itertools
 import json
 import logging
+import os
 import pathlib
 import shutil
 import time
@@ -159,10 +160,29 @@ class Scenario:
 STATIC_OBSERVE_S = 2.0
 
 
+def protocol_geometry(lamp_map):
+    """``(lamp_x_m, start_chainage_m, cell_m)`` of the protocols on ``lamp_map``: the lamp
+    the static trials stand before (the one nearest ``LAMP_X_M`` with at least 10 m of
+    line before it), the dynamic runs' start (0.5 m past the first lamp) and the lamp
+    spacing (the median). On the shipped map: 50, 10.5 and 10 m, the paper's.
+    """
+    chainages = np.asarray(lamp_map.chainages, float)
+    if chainages.size == 0 or not np.all(np.isfinite(chainages)):
+        chainages = np.asarray(lamp_map.positions, float).reshape(-1, 3)[:, 0]
+    s = np.sort(chainages)
+    if s.size < 2:
+        raise ValueError('the protocols need a lamp map of two lamps or more')
+    standing = s[s >= s[0] + max(TEST_POINTS_M)]
+    if standing.size == 0:
+        raise ValueError('the static protocol needs a lamp with 10 m of line before it')
+    lamp_x = float(standing[np.argmin(np.abs(standing - LAMP_X_M))])
+    return lamp_x, float(s[0]) + DYNAMIC_START_M - 10.0, float(np.median(np.diff(s)))
+
+
 def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=STATIC_OBSERVE_S,
-                     first_seed=1):
+                     first_seed=1, lamp_x_m=LAMP_X_M):
     return [Scenario(name=f'static_{d:04.1f}m_seed{seed}', motion_profile='stationary',
-                     start_chainage_m=LAMP_X_M - d, seed=seed, duration_s=observe_s,
+                     start_chainage_m=lamp_x_m - d, seed=seed, duration_s=observe_s,
                      observe_s=observe_s, static_point_m=d)
             for d, seed in itertools.product(points_m, range(first_seed, first_seed + trials))]
 
@@ -186,16 +206,18 @@ def dynamic_settle_s(speed_kmh):
     return max(1.0, lead_in_m(speed_kmh) / max(speed_kmh / 3.6, 0.1))
 
 
-def dynamic_scenarios(speeds_kmh=(20, 40, 60, 80, 100, 120), runs=10, cells=6, first_seed=1):
+def dynamic_scenarios(speeds_kmh=(20, 40, 60, 80, 100, 120), runs=10, cells=6, first_seed=1,
+                      start_chainage_m=DYNAMIC_START_M, cell_m=10.0):
     """Constant speed from 0.5 m past the first lamp (the next is in view at once): the
     lead-in (:func:`lead_in_m`, ``SETTLE_CELLS`` of the ``cells`` at 20 km/h, longer
-    faster), then the scored ``cells − SETTLE_CELLS`` lamp cells (10 m each).
+    faster), then the scored ``cells − SETTLE_CELLS`` lamp cells (``cell_m`` each: the
+    lamp spacing, :func:`protocol_geometry`).
     """
     out = []
     for v, seed in itertools.product(speeds_kmh, range(first_seed, first_seed + runs)):
-        distance = lead_in_m(v) + 10.0 * (cells - SETTLE_CELLS) + 1.0
+        distance = lead_in_m(v) + cell_m * (cells - SETTLE_CELLS) + 1.0
         out.append(Scenario(name=f'dynamic_{v:03d}kmh_seed{seed}', motion_profile='constant',
-                            start_chainage_m=DYNAMIC_START_M, speed_kmh=float(v),
+                            start_chainage_m=start_chainage_m, speed_kmh=float(v),
                             seed=seed, duration_s=distance / (v / 3.6)))
     return out
 
@@ -379,6 +401,29 @@ def _run_with_retries(scenario, bag_dir, lane, lamp_map, retries):
     return result
 
 
+#: the nodes that read ``lamp_map_path``: the rig's camera, and the receivers' decoder and
+#: localizer (on a drawn installation they are given the survey of that map instead)
+LAMP_MAP_NODES = ('stereo_camera_node', 'vlc_decoder_node', 'train_localizer_node')
+
+
+def use_lamp_map(scenario, lamp_map):
+    """Run ``scenario`` on the lamp map it is scored against (``run_evaluation
+    --lamp-map``): a map loaded from a file other than the shipped default becomes the
+    ``lamp_map_path`` of the rig and the receivers, unless the scenario's camera names a
+    map of its own (the companion, outage and forged-lamp scenarios, whose receivers are
+    given a deliberately different one). Before, the graph ran on the shipped map and the
+    test points came from the given one.
+    """
+    from vlc_common.core.lamp_map import default_lamp_map_path
+    path = getattr(lamp_map, 'path', None)
+    if not path or os.path.realpath(path) == os.path.realpath(default_lamp_map_path()):
+        return
+    if scenario.node_params.get('stereo_camera_node', {}).get('lamp_map_path'):
+        return
+    for exe in LAMP_MAP_NODES:
+        scenario.node_params.setdefault(exe, {})['lamp_map_path'] = os.path.realpath(path)
+
+
 def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=None,
                   rescore=False, retries=1, fixed_pace=False, lockstep=False):
     """Run and score groups of scenarios; bags in ``out_dir/<group>/``.
@@ -396,6 +441,8 @@ def run_protocols(groups, out_dir, lamp_map, lanes=2, spawn='fork', progress=Non
     out_dir = pathlib.Path(out_dir)
     items = [(group, scenario) for group, scenarios in groups.items()
              for scenario in scenarios]
+    for _, scenario in items:
+        use_lamp_map(scenario, lamp_map)
     if lockstep:
         from vlc_evaluation.runner import lockstep_capable
         for _, scenario in items:

@@ -93,6 +93,8 @@ class LampMap:
         #: (N, 3) survey 1σ per lamp along map x, y, z (m), NaN where unknown
         self.position_sigmas = (np.array([lamp.position_sigma_m for lamp in self.lamps])
                                 if self.lamps else np.zeros((0, 3)))
+        #: the file it was loaded from (:meth:`load`), None when built in code
+        self.path = None
 
     def __len__(self):
         return len(self.lamps)
@@ -132,8 +134,10 @@ class LampMap:
                       chainage_m=float(d.get('chainage_m', float('nan'))),
                       position_sigma_m=d.get('position_sigma_m', float('nan')))
                  for d in data['lamps']]
-        return cls(lamps, frame_id=data.get('frame_id', 'map'),
-                   alignment=str(data.get('alignment', '')))
+        lamp_map = cls(lamps, frame_id=data.get('frame_id', 'map'),
+                       alignment=str(data.get('alignment', '')))
+        lamp_map.path = str(path)
+        return lamp_map
 
     def save(self, path, header=None):
         """Write the map as YAML; ``header`` (optional) replaces the opening comment
