@@ -345,3 +345,7 @@ def test_the_protocols_run_on_the_lamp_map_they_are_scored_against(tmp_path, cap
         cli.main(['--protocol', 'static', '--lamp-map', str(short), '--out',
                   str(tmp_path / 'out')])
     assert exc.value.code == 2 and 'two lamps or more' in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:      # a curved line's map on the straight rig
+        cli.main(['--protocol', 'none', '--lamp-map', default_lamp_map_path('curved_demo'),
+                  '--out', str(tmp_path / 'out')])
+    assert exc.value.code == 2 and "'curved_demo' alignment" in capsys.readouterr().err

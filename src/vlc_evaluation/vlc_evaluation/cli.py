@@ -301,6 +301,11 @@ def main(argv=None):
     logging.basicConfig(level=logging.INFO, format='%(levelname)s %(name)s: %(message)s')
     out = pathlib.Path(args.out)
     lamp_map = LampMap.load(args.lamp_map or default_lamp_map_path())
+    if lamp_map.alignment not in ('', 'straight'):
+        # the rig and the receivers would put its lamps beside the straight line
+        parser.exit(2, f'run_evaluation: error: --lamp-map {args.lamp_map}: a map of the '
+                       f'{lamp_map.alignment!r} alignment; the protocols run on the straight '
+                       'line (the curved runs are the companions\' and the outage\'s)\n')
     try:
         static, dynamic = build_scenarios(args, lamp_map)
     except ValueError as exc:
