@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from vlc_evaluation import ablations, graph_runner, runner, scenarios
+from vlc_evaluation import ablations, budget, graph_runner, runner, scenarios
 
 
 @pytest.fixture(scope='module')
@@ -318,9 +318,17 @@ def test_the_protocols_run_on_the_lamp_map_they_are_scored_against(tmp_path, cap
         protocol, trials, observe_s, first_seed = 'full', 1, 2.0, 1
         speeds, runs, cells, realtime_factor = [60], 1, 6, 1.0
 
-    static, dynamic = cli.build_scenarios(Args, spaced)
+    geometry = scenarios.protocol_geometry(spaced)
+    static, dynamic = cli.build_scenarios(Args, geometry)
     assert {s.start_chainage_m + s.static_point_m for s in static} == {55.0}
-    default_static, default_dynamic = cli.build_scenarios(Args, shipped)
+    # the ablation and budget rows stand and start alike
+    for group in (ablations.ablation_groups(trials=1, runs=1, geometry=geometry),
+                  budget.budget_groups(trials=1, runs=1, geometry=geometry)):
+        assert {s.start_chainage_m + s.static_point_m for name, runs in group.items()
+                if name.endswith('/static') for s in runs} == {55.0}
+        assert {s.start_chainage_m for name, runs in group.items()
+                if name.endswith('/dynamic') for s in runs} == {10.5}
+    default_static, default_dynamic = cli.build_scenarios(Args, None)
     assert {s.start_chainage_m + s.static_point_m for s in default_static} == {50.0}
     # four scored cells of 15 m instead of 10 m
     assert dynamic[0].duration_s - default_dynamic[0].duration_s == pytest.approx(

@@ -46,13 +46,17 @@ GROUP_PREFIX = 'ablations/'
 
 def ablation_groups(points_m=STATIC_POINTS_M, trials=2, speeds_kmh=SPEEDS_KMH, runs=2,
                     cells=4, observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0,
-                    variants=VARIANTS):
-    """``{'ablations/<variant>/static': [Scenario], 'ablations/<variant>/dynamic': …}``."""
+                    variants=VARIANTS, geometry=None):
+    """``{'ablations/<variant>/static': [Scenario], 'ablations/<variant>/dynamic': …}``
+    (placed on the lamps of ``geometry``, :func:`.scenarios.protocol_geometry`).
+    """
     groups = {}
+    at_static, at_dynamic = scenarios.placement(geometry)
     for name, _, params in variants:
         static = scenarios.static_scenarios(points_m=points_m, trials=trials,
-                                            observe_s=observe_s)
-        dynamic = scenarios.dynamic_scenarios(speeds_kmh=speeds_kmh, runs=runs, cells=cells)
+                                            observe_s=observe_s, **at_static)
+        dynamic = scenarios.dynamic_scenarios(speeds_kmh=speeds_kmh, runs=runs, cells=cells,
+                                              **at_dynamic)
         for scenario in static + dynamic:
             scenario.node_params = {exe: dict(p) for exe, p in params.items()}
             scenario.realtime_factor = realtime_factor

@@ -36,16 +36,20 @@ def budget_rows(profile='realistic'):
 
 def budget_groups(profile='realistic', points_m=STATIC_POINTS_M, trials=2,
                   speeds_kmh=SPEEDS_KMH, runs=2, cells=4,
-                  observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0, first_seed=1):
+                  observe_s=scenarios.STATIC_OBSERVE_S, realtime_factor=1.0, first_seed=1,
+                  geometry=None):
     """``{'budget/<row>/static': [Scenario], 'budget/<row>/dynamic': […]}``, every row on
-    the same points, speeds and seeds.
+    the same points, speeds and seeds (placed on the lamps of ``geometry``,
+    :func:`.scenarios.protocol_geometry`).
     """
     groups = {}
+    at_static, at_dynamic = scenarios.placement(geometry)
     for name, rig_profile, _ in budget_rows(profile):
         static = scenarios.static_scenarios(points_m=points_m, trials=trials,
-                                            observe_s=observe_s, first_seed=first_seed)
+                                            observe_s=observe_s, first_seed=first_seed,
+                                            **at_static)
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=speeds_kmh, runs=runs, cells=cells,
-                                              first_seed=first_seed)
+                                              first_seed=first_seed, **at_dynamic)
         for scenario in static + dynamic:
             scenario.rig_profile = rig_profile
             scenario.realtime_factor = realtime_factor

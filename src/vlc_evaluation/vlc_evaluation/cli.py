@@ -101,28 +101,25 @@ def latency_replays(out, rescore=False):
     return replays
 
 
-def build_scenarios(args, lamp_map=None):
-    """The static and dynamic scenarios of ``args.protocol``, placed on ``lamp_map``'s
-    lamps (:func:`.scenarios.protocol_geometry`; None: the shipped map's).
+def build_scenarios(args, geometry=None):
+    """The static and dynamic scenarios of ``args.protocol``, placed on the lamps of
+    ``geometry`` (:func:`.scenarios.protocol_geometry`; None: the shipped map's).
     """
     static, dynamic = [], []
-    lamp_x, start, cell = scenarios.LAMP_X_M, scenarios.DYNAMIC_START_M, 10.0
-    if lamp_map is not None and args.protocol in ('demo', 'static', 'dynamic', 'full'):
-        lamp_x, start, cell = scenarios.protocol_geometry(lamp_map)
+    at_static, at_dynamic = scenarios.placement(geometry)
     if args.protocol == 'demo':
         static = scenarios.static_scenarios(points_m=(9.0, 5.0, 2.0), trials=1,
                                             observe_s=args.observe_s,
-                                            first_seed=args.first_seed, lamp_x_m=lamp_x)
+                                            first_seed=args.first_seed, **at_static)
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=(60,), runs=1, cells=4,
-                                              first_seed=args.first_seed,
-                                              start_chainage_m=start, cell_m=cell)
+                                              first_seed=args.first_seed, **at_dynamic)
     if args.protocol in ('static', 'full'):
         static = scenarios.static_scenarios(trials=args.trials, observe_s=args.observe_s,
-                                            first_seed=args.first_seed, lamp_x_m=lamp_x)
+                                            first_seed=args.first_seed, **at_static)
     if args.protocol in ('dynamic', 'full'):
         dynamic = scenarios.dynamic_scenarios(speeds_kmh=tuple(args.speeds), runs=args.runs,
                                               cells=args.cells, first_seed=args.first_seed,
-                                              start_chainage_m=start, cell_m=cell)
+                                              **at_dynamic)
     for scenario in static + dynamic:
         scenario.realtime_factor = args.realtime_factor
     return static, dynamic
@@ -307,9 +304,10 @@ def main(argv=None):
                        f'{lamp_map.alignment!r} alignment; the protocols run on the straight '
                        'line (the curved runs are the companions\' and the outage\'s)\n')
     try:
-        static, dynamic = build_scenarios(args, lamp_map)
+        geometry = scenarios.protocol_geometry(lamp_map)
     except ValueError as exc:
         parser.exit(2, f'run_evaluation: error: --lamp-map {args.lamp_map}: {exc}\n')
+    static, dynamic = build_scenarios(args, geometry)
     groups = {'static': static, 'dynamic': dynamic}
     if args.replay_bag:
         groups['replay'] = [scenarios.replay_scenario(bag, args.realtime_factor)
@@ -337,7 +335,7 @@ def main(argv=None):
     if args.ablations:
         groups.update(ablations.ablation_groups(
             trials=args.ablation_trials, runs=args.ablation_runs, observe_s=args.observe_s,
-            realtime_factor=args.realtime_factor))
+            realtime_factor=args.realtime_factor, geometry=geometry))
 
     def check_profile(name):
         """Exit 2 naming the file and field unless ``name`` is a usable rig profile."""
@@ -370,7 +368,7 @@ def main(argv=None):
         groups.update(budget.budget_groups(
             args.budget_profile, trials=args.budget_trials, runs=args.budget_runs,
             observe_s=args.observe_s, realtime_factor=args.realtime_factor,
-            first_seed=args.first_seed))
+            first_seed=args.first_seed, geometry=geometry))
     if args.departures:
         if args.departures_profile != 'ideal':
             check_profile(args.departures_profile)

@@ -179,6 +179,18 @@ def protocol_geometry(lamp_map):
     return lamp_x, float(s[0]) + DYNAMIC_START_M - 10.0, float(np.median(np.diff(s)))
 
 
+#: the shipped map's :func:`protocol_geometry`
+SHIPPED_GEOMETRY = (LAMP_X_M, DYNAMIC_START_M, 10.0)
+
+
+def placement(geometry=None):
+    """``(static kwargs, dynamic kwargs)`` of :func:`static_scenarios` and
+    :func:`dynamic_scenarios` for a :func:`protocol_geometry` (None: the shipped map's).
+    """
+    lamp_x, start, cell = geometry or SHIPPED_GEOMETRY
+    return {'lamp_x_m': lamp_x}, {'start_chainage_m': start, 'cell_m': cell}
+
+
 def static_scenarios(points_m=TEST_POINTS_M, trials=10, observe_s=STATIC_OBSERVE_S,
                      first_seed=1, lamp_x_m=LAMP_X_M):
     return [Scenario(name=f'static_{d:04.1f}m_seed{seed}', motion_profile='stationary',
