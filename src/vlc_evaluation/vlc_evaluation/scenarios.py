@@ -43,7 +43,8 @@ SENSOR_TOPICS = ['/stereo/left/image_raw', '/stereo/right/image_raw',
 TEST_POINTS_M = tuple(np.round(np.arange(10.0, 0.0, -0.5), 1))
 SETTLE_CELLS = 2          # dynamic: lamp cells passed before scoring starts (cold start)
 LEAD_IN_S = 3.0           # ... and at least this long at speed (see lead_in_m)
-DYNAMIC_START_M = 10.5    # dynamic runs start 0.5 m past the map's first lamp (10 m)
+START_PAST_FIRST_LAMP_M = 0.5  # dynamic runs start this far past the map's first lamp
+DYNAMIC_START_M = 10.0 + START_PAST_FIRST_LAMP_M    # ... on the shipped map (10 m)
 HEADING_BOUND_DEG = 0.2   # the compensated heading's bound (cold start: time to reach it)
 LAMP_X_M = 50.0          # the static protocol stands before the lamp at 50 m (UID 0x1005)
 
@@ -166,17 +167,14 @@ def protocol_geometry(lamp_map):
     line before it), the dynamic runs' start (0.5 m past the first lamp) and the lamp
     spacing (the median). On the shipped map: 50, 10.5 and 10 m, the paper's.
     """
-    chainages = np.asarray(lamp_map.chainages, float)
-    if chainages.size == 0 or not np.all(np.isfinite(chainages)):
-        chainages = np.asarray(lamp_map.positions, float).reshape(-1, 3)[:, 0]
-    s = np.sort(chainages)
+    s = np.sort(np.asarray(lamp_map.chainages, float))     # (map x where a lamp has none)
     if s.size < 2:
         raise ValueError('the protocols need a lamp map of two lamps or more')
     standing = s[s >= s[0] + max(TEST_POINTS_M)]
     if standing.size == 0:
         raise ValueError('the static protocol needs a lamp with 10 m of line before it')
     lamp_x = float(standing[np.argmin(np.abs(standing - LAMP_X_M))])
-    return lamp_x, float(s[0]) + DYNAMIC_START_M - 10.0, float(np.median(np.diff(s)))
+    return lamp_x, float(s[0]) + START_PAST_FIRST_LAMP_M, float(np.median(np.diff(s)))
 
 
 #: the shipped map's :func:`protocol_geometry`
